@@ -1,0 +1,364 @@
+"""The one parameter vector every identification method tunes.
+
+A :class:`Parameter` is an object (name, unit, value, bounds, frozen flag, log scaling) and a
+:class:`ModelParameters` is an ordered, immutable set of them that turns into and back from a
+flat vector (``as_vector`` / ``update_from_vector`` / ``bounds``), in the shape of MuJoCo's
+``sysid`` parameters.
+
+Adding a parameter touches one place: append a :class:`Parameter` to :data:`NOMINAL` (and use
+it where it enters the physics). Actuator parameters are shared by all joints by default;
+``with_per_joint("armature")`` replaces the shared one by ``armature_1`` .. ``armature_11``
+and :meth:`ModelParameters.per_joint` returns the (11,) array either way.
+
+Nominal actuator values follow the XH540-W270 datasheet at 12 V: from the stall torque
+``tau_s = 9.9 N m`` and no-load speed ``w0 = 39 rpm = 4.084 rad/s`` of the DC-motor model
+``tau = r Km (V - r Km qdot) / R`` one gets ``r Km = V / w0 = 2.938 N m/A`` at the joint, so
+``Km = 2.938 / 272.5 = 0.01078 N m/A`` at the motor, and ``R = r Km V / tau_s = 3.561 Ohm``.
+The resistance is held fixed (:data:`WINDING_RESISTANCE_OHM`); ``motor_km`` is tuned.
+"""
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any, Iterable, Iterator, Mapping
+
+import numpy as np
+
+from cobra_model import design
+from cobra_model.errors import InputError
+
+PARAMS_FORMAT = "cobra-params/1"
+
+#: r * Km at the joint [N m/A] = V / no-load speed (datasheet derivation, see module docstring).
+JOINT_TORQUE_CONSTANT_NM_A = design.SUPPLY_VOLTAGE_V / design.SERVO_NO_LOAD_SPEED_RAD_S
+#: Motor torque constant at the motor shaft [N m/A] (datasheet derivation).
+NOMINAL_MOTOR_KM = JOINT_TORQUE_CONSTANT_NM_A / design.SERVO_GEAR_RATIO
+#: Winding resistance [Ohm] from the stall point (datasheet derivation); not tuned.
+WINDING_RESISTANCE_OHM = JOINT_TORQUE_CONSTANT_NM_A * design.SUPPLY_VOLTAGE_V / design.SERVO_STALL_TORQUE_NM
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """One tunable physical parameter.
+
+    Attributes:
+        name: stable identifier used in parameter files and ``--free``/``--frozen``.
+        unit: SI unit string.
+        value: current value in ``unit``.
+        min, max: physical bounds (inclusive).
+        frozen: held fixed by every identification method when True.
+        log_scale: optimisers work on ``log(value)`` (for parameters spanning decades).
+        group: ``"actuator"`` (internal dynamics), ``"ground"`` (external) or an effect name.
+        doc: one-line meaning.
+    """
+
+    name: str
+    unit: str
+    value: float
+    min: float
+    max: float
+    frozen: bool = False
+    log_scale: bool = False
+    group: str = "actuator"
+    doc: str = ""
+
+    def __post_init__(self) -> None:
+        if not (self.min <= self.max):
+            raise InputError(f"parameter {self.name!r}: min {self.min} > max {self.max}")
+        if self.log_scale and self.min <= 0:
+            raise InputError(f"parameter {self.name!r}: log-scaled but min {self.min} <= 0")
+        if not (math.isfinite(self.value) and self.min <= self.value <= self.max):
+            raise InputError(
+                f"parameter {self.name!r} = {self.value} {self.unit} is outside its bounds "
+                f"[{self.min}, {self.max}]"
+            )
+
+    def to_unit_interval(self, value: float | np.ndarray) -> float | np.ndarray:
+        """Map a value to [0, 1] across the bounds (in log space when ``log_scale``)."""
+        if self.log_scale:
+            lo, hi = math.log(self.min), math.log(self.max)
+            return (np.log(value) - lo) / (hi - lo)
+        return (np.asarray(value) - self.min) / (self.max - self.min)
+
+    def from_unit_interval(self, x: float | np.ndarray) -> float | np.ndarray:
+        """Inverse of :meth:`to_unit_interval`."""
+        if self.log_scale:
+            lo, hi = math.log(self.min), math.log(self.max)
+            return np.exp(lo + np.asarray(x) * (hi - lo))
+        return self.min + np.asarray(x) * (self.max - self.min)
+
+
+#: Nominal parameter set: the single table of what can be tuned.
+NOMINAL: tuple[Parameter, ...] = (
+    Parameter("armature", "kg m^2", 0.03, 1e-4, 0.5, log_scale=True, group="actuator",
+              doc="transmission (reflected rotor) inertia at the joint"),
+    Parameter("joint_damping", "N m s/rad", 0.1, 1e-4, 5.0, log_scale=True, group="actuator",
+              doc="internal viscous damping of the gearbox at the joint"),
+    Parameter("motor_km", "N m/A", NOMINAL_MOTOR_KM, 0.003, 0.03, log_scale=True, group="actuator",
+              doc="DC-motor torque constant at the motor shaft (back-EMF constant in V s/rad)"),
+    Parameter("k1", "N/m", 1.0e4, 1.0e3, 5.0e4, log_scale=True, group="ground",
+              doc="ground normal stiffness per contact point"),
+    Parameter("k2", "N s/m", 30.0, 1.0, 200.0, log_scale=True, group="ground",
+              doc="ground normal damping per contact point"),
+    Parameter("mu_c", "1", 0.3, 0.02, 1.5, group="ground",
+              doc="Coulomb (kinetic) friction coefficient"),
+    Parameter("mu_s", "1", 0.45, 0.02, 2.0, group="ground",
+              doc="static friction coefficient (>= mu_c)"),
+    Parameter("mu_v", "N s/m", 0.5, 1e-3, 20.0, log_scale=True, group="ground",
+              doc="viscous friction coefficient per contact point"),
+    Parameter("v_s", "m/s", 0.05, 0.005, 0.5, log_scale=True, group="ground",
+              doc="Stribeck velocity"),
+)
+
+#: Parameters that may be expanded to one value per joint.
+PER_JOINT_CAPABLE: tuple[str, ...] = ("armature", "joint_damping", "motor_km")
+
+
+class ModelParameters:
+    """An ordered, immutable set of :class:`Parameter` objects.
+
+    Values are read by name as attributes (``p.mu_c``) or with :meth:`value`; vectors contain
+    only the free (not frozen) parameters, in table order.
+    """
+
+    __slots__ = ("_params", "_index")
+
+    def __init__(self, params: Iterable[Parameter]):
+        object.__setattr__(self, "_params", tuple(params))
+        index = {p.name: i for i, p in enumerate(self._params)}
+        if len(index) != len(self._params):
+            raise InputError("duplicate parameter names in " + ", ".join(p.name for p in self._params))
+        object.__setattr__(self, "_index", index)
+        self._check_relations()
+
+    # -- construction -----------------------------------------------------------------------
+    @classmethod
+    def nominal(cls) -> "ModelParameters":
+        """The nominal COBRA parameters (datasheet-derived actuator, estimated ground)."""
+        return cls(NOMINAL)
+
+    def _check_relations(self) -> None:
+        if "mu_s" in self._index and "mu_c" in self._index and self.value("mu_s") < self.value("mu_c"):
+            raise InputError(
+                f"parameter 'mu_s' = {self.value('mu_s')} must be >= 'mu_c' = {self.value('mu_c')} "
+                "(static friction is at least the Coulomb friction)"
+            )
+
+    # -- access -----------------------------------------------------------------------------
+    def __getattr__(self, name: str) -> float:
+        index = object.__getattribute__(self, "_index")
+        if name in index:
+            return object.__getattribute__(self, "_params")[index[name]].value
+        raise AttributeError(name)
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError("ModelParameters is immutable; use with_values()")
+
+    def __iter__(self) -> Iterator[Parameter]:
+        return iter(self._params)
+
+    def __len__(self) -> int:
+        return len(self._params)
+
+    def __contains__(self, name: object) -> bool:
+        return name in self._index
+
+    def __eq__(self, other: object) -> bool:
+        return isinstance(other, ModelParameters) and self._params == other._params
+
+    def __hash__(self) -> int:
+        return hash(self._params)
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{p.name}={p.value:.6g}" for p in self._params)
+        return f"ModelParameters({inner})"
+
+    def __getitem__(self, name: str) -> Parameter:
+        try:
+            return self._params[self._index[name]]
+        except KeyError:
+            raise InputError(
+                f"unknown parameter {name!r}; known: {', '.join(self.names)}"
+            ) from None
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """All parameter names in table order."""
+        return tuple(p.name for p in self._params)
+
+    @property
+    def free_names(self) -> tuple[str, ...]:
+        """Names of the parameters that are not frozen, in table order."""
+        return tuple(p.name for p in self._params if not p.frozen)
+
+    def value(self, name: str) -> float:
+        """Value of parameter ``name`` in its unit."""
+        return self[name].value
+
+    def get(self, name: str, default: float) -> float:
+        """Value of ``name`` if the set has it (e.g. an added effect's parameter), else ``default``."""
+        return self._params[self._index[name]].value if name in self._index else default
+
+    def per_joint(self, name: str, default: float | None = None) -> np.ndarray:
+        """(11,) values of a per-joint capable parameter: ``name_k`` where present, else ``name``,
+        else ``default`` (an error if no default is given)."""
+        shared = self.get(name, default) if default is not None else self.value(name)
+        return np.array([self.get(f"{name}_{k}", shared) for k in range(1, design.NUM_JOINTS + 1)])
+
+    # -- derived sets -------------------------------------------------------------------------
+    def with_values(self, **values: float) -> "ModelParameters":
+        """A copy with the given values (bounds are checked)."""
+        for name in values:
+            self[name]  # raises a clear error for unknown names
+        return ModelParameters(
+            replace(p, value=float(values[p.name])) if p.name in values else p for p in self._params
+        )
+
+    def with_frozen(self, frozen: Iterable[str] = (), free: Iterable[str] | None = None) -> "ModelParameters":
+        """A copy where ``free`` (if given) are the only free parameters, then ``frozen`` are frozen."""
+        frozen = set(frozen)
+        free_set = None if free is None else set(free)
+        for name in frozen | (free_set or set()):
+            self[name]
+        def is_frozen(p: Parameter) -> bool:
+            if p.name in frozen:
+                return True
+            return p.frozen if free_set is None else p.name not in free_set
+        return ModelParameters(replace(p, frozen=is_frozen(p)) for p in self._params)
+
+    def with_parameters(self, extra: Iterable[Parameter]) -> "ModelParameters":
+        """A copy with parameters added (or replaced by name), e.g. those of a model effect."""
+        extra = list(extra)
+        names = {p.name for p in extra}
+        return ModelParameters([p for p in self._params if p.name not in names] + extra)
+
+    def with_per_joint(self, name: str) -> "ModelParameters":
+        """Replace shared actuator parameter ``name`` by ``name_1`` .. ``name_11`` (same value)."""
+        if name not in PER_JOINT_CAPABLE:
+            raise InputError(f"parameter {name!r} cannot be per joint; only {', '.join(PER_JOINT_CAPABLE)}")
+        base = self[name]
+        per = [replace(base, name=f"{name}_{k}", doc=f"{base.doc} (joint {k})")
+               for k in range(1, design.NUM_JOINTS + 1)]
+        return self.with_parameters(per).with_frozen(frozen=[name])
+
+    # -- vectors ----------------------------------------------------------------------------
+    def as_vector(self) -> np.ndarray:
+        """Free parameter values in table order [their units]."""
+        return np.array([p.value for p in self._params if not p.frozen], dtype=float)
+
+    def update_from_vector(self, x: np.ndarray) -> "ModelParameters":
+        """A copy with the free parameters set from ``x`` (same order as :meth:`as_vector`)."""
+        free = self.free_names
+        x = np.asarray(x, dtype=float).ravel()
+        if x.shape != (len(free),):
+            raise InputError(f"parameter vector has {x.size} entries, expected {len(free)} ({', '.join(free)})")
+        return self.with_values(**dict(zip(free, x)))
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(lower, upper) bounds of the free parameters."""
+        free = [p for p in self._params if not p.frozen]
+        return np.array([p.min for p in free]), np.array([p.max for p in free])
+
+    def to_unit(self) -> np.ndarray:
+        """Free parameters mapped to [0, 1] (log-scaled where flagged)."""
+        return np.array([float(p.to_unit_interval(p.value)) for p in self._params if not p.frozen])
+
+    def from_unit(self, x: np.ndarray) -> "ModelParameters":
+        """Inverse of :meth:`to_unit`; ``x`` is clipped to [0, 1]."""
+        free = [p for p in self._params if not p.frozen]
+        x = np.clip(np.asarray(x, dtype=float).ravel(), 0.0, 1.0)
+        if x.shape != (len(free),):
+            raise InputError(f"unit vector has {x.size} entries, expected {len(free)}")
+        return self.with_values(**{p.name: float(p.from_unit_interval(xi)) for p, xi in zip(free, x)})
+
+    # -- files ------------------------------------------------------------------------------
+    def to_json_dict(self) -> dict[str, Any]:
+        """The parameter-file object: ``{"format", "parameters": {name: {value, unit, min, max, frozen, ...}}}``."""
+        return {
+            "format": PARAMS_FORMAT,
+            "parameters": {
+                p.name: {
+                    "value": p.value, "unit": p.unit, "min": p.min, "max": p.max,
+                    "frozen": p.frozen, "log_scale": p.log_scale, "group": p.group, "doc": p.doc,
+                }
+                for p in self._params
+            },
+        }
+
+    @classmethod
+    def from_json_dict(cls, data: Mapping[str, Any], *, source: str = "<parameters>") -> "ModelParameters":
+        """Parse a parameter-file object; names not in the nominal table must give unit and bounds.
+
+        Raises:
+            InputError: naming ``source`` and the parameter, for a missing ``parameters`` object,
+                an unknown name without unit/bounds, a non-numeric or out-of-bound value.
+        """
+        if not isinstance(data, Mapping) or not isinstance(data.get("parameters"), Mapping):
+            raise InputError(f"{source}: expected a JSON object with a \"parameters\" object")
+        fmt = data.get("format", PARAMS_FORMAT)
+        if fmt != PARAMS_FORMAT:
+            raise InputError(f"{source}: format is {fmt!r}, expected {PARAMS_FORMAT!r}")
+        known = {p.name: p for p in NOMINAL}
+        params: list[Parameter] = []
+        for name, entry in data["parameters"].items():
+            where = f"{source}: parameter {name!r}"
+            if not isinstance(entry, Mapping) or "value" not in entry:
+                raise InputError(f"{where}: expected an object with at least \"value\"")
+            base = known.get(name) or _per_joint_base(name, known)
+            fields: dict[str, Any] = {}
+            for key, kind in (("value", float), ("min", float), ("max", float), ("frozen", bool),
+                              ("log_scale", bool), ("unit", str), ("group", str), ("doc", str)):
+                if key in entry:
+                    raw = entry[key]
+                    ok = isinstance(raw, bool) if kind is bool else (
+                        isinstance(raw, (int, float)) and not isinstance(raw, bool) if kind is float
+                        else isinstance(raw, str))
+                    if not ok:
+                        raise InputError(f"{where}: {key!r} must be a {kind.__name__}, got {raw!r}")
+                    fields[key] = kind(raw)
+            if base is None:
+                missing = [k for k in ("unit", "min", "max") if k not in fields]
+                if missing:
+                    raise InputError(
+                        f"{where} is not a known parameter ({', '.join(known)}) and does not give "
+                        f"{', '.join(missing)}"
+                    )
+                base = Parameter(name, fields["unit"], fields["value"], fields["min"], fields["max"])
+            try:
+                params.append(replace(base, name=name, **fields))
+            except InputError as exc:
+                raise InputError(f"{source}: {exc}") from None
+        try:
+            return cls(params)
+        except InputError as exc:
+            raise InputError(f"{source}: {exc}") from None
+
+    def save(self, path: str | Path, *, force: bool = False) -> Path:
+        """Write the parameter file; refuses to overwrite unless ``force``."""
+        path = Path(path)
+        if path.exists() and not force:
+            raise FileExistsError(f"{path} exists; pass --force to overwrite it")
+        path.write_text(json.dumps(self.to_json_dict(), indent=2) + "\n")
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "ModelParameters":
+        """Read a parameter file written by :meth:`save` (or by hand)."""
+        path = Path(path)
+        if not path.is_file():
+            raise FileNotFoundError(f"parameter file {path} does not exist")
+        try:
+            data = json.loads(path.read_text())
+        except json.JSONDecodeError as exc:
+            raise InputError(f"{path}: not valid JSON ({exc})") from None
+        return cls.from_json_dict(data, source=str(path))
+
+
+def _per_joint_base(name: str, known: Mapping[str, Parameter]) -> Parameter | None:
+    """The shared parameter behind a per-joint name such as ``armature_7``."""
+    stem, _, k = name.rpartition("_")
+    if stem in PER_JOINT_CAPABLE and k.isdigit() and 1 <= int(k) <= design.NUM_JOINTS:
+        return known[stem]
+    return None

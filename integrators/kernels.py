@@ -1,0 +1,421 @@
+"""Compiled (numba) kernels of the simulator's hot path: contact-point kinematics, the Stribeck
+ground model and the Dynamixel/DC-motor actuator.
+
+Pinocchio does the rigid-body algorithms (ABA, CRBA, RNEA, energies); these kernels do only
+what is this project's own: locating the ground-contact points on the collision geometry,
+evaluating the compliant ground and the actuator, and mapping the contact forces to generalized
+forces ``J^T F``. To do so in one compiled call per step they walk the kinematic tree with the
+joint placements and axes read from the Pinocchio model; ``tests/test_kernels.py`` checks
+positions, velocities and ``J^T F`` against Pinocchio's own frame Jacobians to 1e-12.
+
+Conventions (Pinocchio's): a floating root has ``q = [p (3), quat x y z w (4), joints]`` and
+``v = [v_lin (3), omega (3), joint rates]`` with both root velocities expressed in the root's
+local frame; the root's generalized force is (force, torque about its origin) in that frame.
+"""
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+# Indices into the ground parameter array ``ground``.
+G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL = range(8)
+N_GROUND = 8
+
+# Indices into the per-joint actuator array ``act`` (shape (n_joints, N_ACT)).
+A_DAMPING, A_RKM, A_COULOMB, A_TAU_MAX, A_COULOMB_EPS, A_ENC_OFFSET, A_BACKLASH = range(7)
+N_ACT = 7
+
+# Indices into the scalar settings array ``scal``.
+S_DT, S_VOLTAGE, S_RESISTANCE, S_MAX_DEPTH, S_MAX_SPEED, S_KP, S_KI, S_KD, S_PWM_LIMIT = range(9)
+N_SCAL = 9
+
+# Contact feature kinds.
+FEATURE_POINT = 0       # sphere or point: lowest point = centre - radius * z
+FEATURE_CIRCLE = 1      # end circle of a cylinder: lowest point of the circle
+
+# Status codes returned by the kernels (0 = fine).
+STATUS_OK = 0
+STATUS_NONFINITE = 1
+STATUS_PENETRATION = 2
+STATUS_VELOCITY = 3
+
+
+@njit(cache=True, fastmath=False)
+def _quat_xyzw_to_rot(qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
+    n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
+    x, y, z, w = qx / n, qy / n, qz / n, qw / n
+    R = np.empty((3, 3))
+    R[0, 0] = 1 - 2 * (y * y + z * z)
+    R[0, 1] = 2 * (x * y - z * w)
+    R[0, 2] = 2 * (x * z + y * w)
+    R[1, 0] = 2 * (x * y + z * w)
+    R[1, 1] = 1 - 2 * (x * x + z * z)
+    R[1, 2] = 2 * (y * z - x * w)
+    R[2, 0] = 2 * (x * z - y * w)
+    R[2, 1] = 2 * (y * z + x * w)
+    R[2, 2] = 1 - 2 * (x * x + y * y)
+    return R
+
+
+@njit(cache=True)
+def _rot_axis_into(out, a0, a1, a2, th):
+    c, s = np.cos(th), np.sin(th)
+    C = 1.0 - c
+    out[0, 0] = c + a0 * a0 * C
+    out[0, 1] = a0 * a1 * C - a2 * s
+    out[0, 2] = a0 * a2 * C + a1 * s
+    out[1, 0] = a1 * a0 * C + a2 * s
+    out[1, 1] = c + a1 * a1 * C
+    out[1, 2] = a1 * a2 * C - a0 * s
+    out[2, 0] = a2 * a0 * C - a1 * s
+    out[2, 1] = a2 * a1 * C + a0 * s
+    out[2, 2] = c + a2 * a2 * C
+
+
+@njit(cache=True)
+def chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w, vo, aw):
+    """World pose and velocity of every body of the tree (allocation-free inner loop).
+
+    Args:
+        q, v: configuration (nq,) and velocity (nv,) in Pinocchio's convention.
+        floating: True when body 0 is a free-flyer root.
+        parents: (nb,) parent body index, -1 for the universe.
+        jR, jp: (nb, 3, 3), (nb, 3) joint placement in the parent body frame.
+        axes: (nb, 3) revolute axis in the joint frame (unused for a floating root).
+        qidx, vidx: (nb,) index of each revolute joint's coordinate in q and v.
+        R, p, w, vo, aw: outputs (nb, 3, 3), (nb, 3) x4: world rotation, origin [m], angular
+            velocity [rad/s], origin velocity [m/s] and the joint axis in the world frame.
+    """
+    nb = parents.shape[0]
+    Rj = np.empty((3, 3))
+    Ra = np.empty((3, 3))
+    for i in range(nb):
+        if floating and i == 0:
+            R[0] = _quat_xyzw_to_rot(q[3], q[4], q[5], q[6])
+            for r in range(3):
+                p[0, r] = q[r]
+                w[0, r] = R[0, r, 0] * v[3] + R[0, r, 1] * v[4] + R[0, r, 2] * v[5]
+                vo[0, r] = R[0, r, 0] * v[0] + R[0, r, 1] * v[1] + R[0, r, 2] * v[2]
+                aw[0, r] = 0.0
+            continue
+        par = parents[i]
+        if par < 0:
+            for r in range(3):
+                p[i, r] = jp[i, r]
+                w[i, r] = 0.0
+                vo[i, r] = 0.0
+                for c in range(3):
+                    Rj[r, c] = jR[i, r, c]
+        else:
+            for r in range(3):
+                acc = p[par, r]
+                for c in range(3):
+                    acc += R[par, r, c] * jp[i, c]
+                    Rj[r, c] = (R[par, r, 0] * jR[i, 0, c] + R[par, r, 1] * jR[i, 1, c]
+                                + R[par, r, 2] * jR[i, 2, c])
+                p[i, r] = acc
+            dx = p[i, 0] - p[par, 0]
+            dy = p[i, 1] - p[par, 1]
+            dz = p[i, 2] - p[par, 2]
+            wx, wy, wz = w[par, 0], w[par, 1], w[par, 2]
+            vo[i, 0] = vo[par, 0] + wy * dz - wz * dy
+            vo[i, 1] = vo[par, 1] + wz * dx - wx * dz
+            vo[i, 2] = vo[par, 2] + wx * dy - wy * dx
+            w[i, 0], w[i, 1], w[i, 2] = wx, wy, wz
+        _rot_axis_into(Ra, axes[i, 0], axes[i, 1], axes[i, 2], q[qidx[i]])
+        qd = v[vidx[i]]
+        for r in range(3):
+            for c in range(3):
+                R[i, r, c] = Rj[r, 0] * Ra[0, c] + Rj[r, 1] * Ra[1, c] + Rj[r, 2] * Ra[2, c]
+            aw[i, r] = Rj[r, 0] * axes[i, 0] + Rj[r, 1] * axes[i, 1] + Rj[r, 2] * axes[i, 2]
+            w[i, r] += aw[i, r] * qd
+
+
+@njit(cache=True)
+def add_point_force(tau, body, x0, x1, x2, f0, f1, f2, floating, parents, vidx, R, p, aw):
+    """Accumulate ``J(x)^T F`` into ``tau`` for a world force ``F`` [N] at world point ``x`` on ``body``."""
+    j = body
+    while j >= 0:
+        rx, ry, rz = x0 - p[j, 0], x1 - p[j, 1], x2 - p[j, 2]
+        mx = ry * f2 - rz * f1
+        my = rz * f0 - rx * f2
+        mz = rx * f1 - ry * f0
+        if floating and j == 0:
+            for c in range(3):
+                tau[c] += R[0, 0, c] * f0 + R[0, 1, c] * f1 + R[0, 2, c] * f2
+                tau[3 + c] += R[0, 0, c] * mx + R[0, 1, c] * my + R[0, 2, c] * mz
+        else:
+            tau[vidx[j]] += aw[j, 0] * mx + aw[j, 1] * my + aw[j, 2] * mz
+        j = parents[j]
+
+
+@njit(cache=True)
+def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
+                  f_body, f_kind, f_c, f_a, f_r, ground, tau, X, F, max_depth):
+    """Stribeck ground (paper Eqs. 3-6) on every contact feature, accumulated as ``J^T F``.
+
+    Contact points: a point feature touches at ``centre - radius z``; a circle feature (a
+    cylinder's end) at the lowest point of the circle.
+    Normal: ``F_z = max(0, -k1 p_z - k2 pdot_z)`` below ground, 0 above (no adhesion).
+    Tangential, per component ``i`` of the contact velocity in the contact's ground frame
+    (``t1`` = the body's x axis projected on the ground, ``t2 = z x t1``):
+    ``F_i = -s_i F_z sgn_eps(pdot_i) - mu_v pdot_i`` with
+    ``s_i = mu_c - (mu_c - mu_s) exp(-pdot_i^2 / v_s^2)``, the lateral (``t2``) component's
+    ``s`` multiplied by ``ground[G_LATERAL]`` (1 = isotropic, the paper's model).
+    ``sgn_eps(x) = tanh(x / eps)``: below ``eps`` [m/s] friction acts as a viscous damper of
+    slope ``s F_z / eps``, so a contact loaded tangentially below its friction limit creeps at
+    about ``eps F_t / (s F_z)``; eps bounds the stiffness the explicit step must resolve.
+    The frame is the body's so that the law does not depend on the robot's world heading.
+
+    Returns:
+        status: STATUS_OK, or STATUS_PENETRATION if a point is deeper than ``max_depth`` [m].
+    Outputs ``X`` (nf, 3) contact points [m] and ``F`` (nf, 3) world forces [N].
+    """
+    nb = parents.shape[0]
+    R = np.empty((nb, 3, 3))
+    p = np.empty((nb, 3))
+    w = np.empty((nb, 3))
+    vo = np.empty((nb, 3))
+    aw = np.empty((nb, 3))
+    chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w, vo, aw)
+    k1, k2 = ground[G_K1], ground[G_K2]
+    mu_c, mu_s, mu_v, v_s = ground[G_MU_C], ground[G_MU_S], ground[G_MU_V], ground[G_V_S]
+    eps, lateral = ground[G_EPS], ground[G_LATERAL]
+    status = STATUS_OK
+    for k in range(f_body.shape[0]):
+        b = f_body[k]
+        c0 = p[b, 0] + R[b, 0, 0] * f_c[k, 0] + R[b, 0, 1] * f_c[k, 1] + R[b, 0, 2] * f_c[k, 2]
+        c1 = p[b, 1] + R[b, 1, 0] * f_c[k, 0] + R[b, 1, 1] * f_c[k, 1] + R[b, 1, 2] * f_c[k, 2]
+        c2 = p[b, 2] + R[b, 2, 0] * f_c[k, 0] + R[b, 2, 1] * f_c[k, 1] + R[b, 2, 2] * f_c[k, 2]
+        rad = f_r[k]
+        if f_kind[k] == FEATURE_POINT:
+            x0, x1, x2 = c0, c1, c2 - rad
+        else:
+            a0 = R[b, 0, 0] * f_a[k, 0] + R[b, 0, 1] * f_a[k, 1] + R[b, 0, 2] * f_a[k, 2]
+            a1 = R[b, 1, 0] * f_a[k, 0] + R[b, 1, 1] * f_a[k, 1] + R[b, 1, 2] * f_a[k, 2]
+            a2 = R[b, 2, 0] * f_a[k, 0] + R[b, 2, 1] * f_a[k, 1] + R[b, 2, 2] * f_a[k, 2]
+            # -(z - (z.a) a): the in-plane direction of steepest descent
+            d0, d1, d2 = a0 * a2, a1 * a2, a2 * a2 - 1.0
+            n = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            if n > 1e-9:
+                x0, x1, x2 = c0 + rad * d0 / n, c1 + rad * d1 / n, c2 + rad * d2 / n
+            else:
+                x0, x1, x2 = c0, c1, c2
+        X[k, 0], X[k, 1], X[k, 2] = x0, x1, x2
+        F[k, 0] = 0.0
+        F[k, 1] = 0.0
+        F[k, 2] = 0.0
+        if x2 >= 0.0:
+            continue
+        if -x2 > max_depth:
+            status = STATUS_PENETRATION
+        rx, ry, rz = x0 - p[b, 0], x1 - p[b, 1], x2 - p[b, 2]
+        xv0 = vo[b, 0] + w[b, 1] * rz - w[b, 2] * ry
+        xv1 = vo[b, 1] + w[b, 2] * rx - w[b, 0] * rz
+        xv2 = vo[b, 2] + w[b, 0] * ry - w[b, 1] * rx
+        fz = -k1 * x2 - k2 * xv2
+        if fz <= 0.0:
+            continue
+        bx0, bx1 = R[b, 0, 0], R[b, 1, 0]
+        n = np.sqrt(bx0 * bx0 + bx1 * bx1)
+        if n > 1e-6:
+            t1x, t1y = bx0 / n, bx1 / n
+        else:
+            t1x, t1y = 1.0, 0.0
+        v1 = xv0 * t1x + xv1 * t1y
+        v2 = -xv0 * t1y + xv1 * t1x
+        s1 = mu_c - (mu_c - mu_s) * np.exp(-(v1 / v_s) ** 2)
+        s2 = lateral * (mu_c - (mu_c - mu_s) * np.exp(-(v2 / v_s) ** 2))
+        f1 = -s1 * fz * np.tanh(v1 / eps) - mu_v * v1
+        f2 = -s2 * fz * np.tanh(v2 / eps) - mu_v * v2
+        fx = f1 * t1x - f2 * t1y
+        fy = f1 * t1y + f2 * t1x
+        F[k, 0], F[k, 1], F[k, 2] = fx, fy, fz
+        add_point_force(tau, b, x0, x1, x2, fx, fy, fz, floating, parents, vidx, R, p, aw)
+    return status
+
+
+@njit(cache=True)
+def servo_duty(q_goal, q_meas, integ, prev_err, kp, ki, kd, pwm_limit, duty_out):
+    """Dynamixel X position loop: PWM duty in [-1, 1] from the goal and measured angle.
+
+    Errors are in encoder pulses (4096 per turn); ``kp = P/128``, ``ki = I/65536``,
+    ``kd = D/16`` (e-manual gain conversions); the output in PWM units is clipped at
+    ``pwm_limit`` and scaled by 885 (= 100 % duty). ``integ`` and ``prev_err`` (pulses) are
+    updated in place once per control tick.
+    """
+    scale = 4096.0 / (2.0 * np.pi)
+    for j in range(q_goal.shape[0]):
+        e = (q_goal[j] - q_meas[j]) * scale
+        integ[j] += e
+        u = kp * e + ki * integ[j] + kd * (e - prev_err[j])
+        prev_err[j] = e
+        if u > pwm_limit:
+            u = pwm_limit
+        elif u < -pwm_limit:
+            u = -pwm_limit
+        duty_out[j] = u / 885.0
+
+
+@njit(cache=True)
+def actuator_torques(duty, qd, torque_on, act, voltage, resistance, tau_out, current_out):
+    """Spong's DC motor behind the gearbox, at the joint.
+
+    ``i = (duty V - r Km qdot) / R`` [A], ``tau = r Km i - b qdot - tau_c tanh(qdot / eps_c)``
+    clipped at ``tau_max`` [N m] (``act`` columns: damping b, r*Km, Coulomb tau_c, tau_max,
+    eps_c). With torque off the motor circuit is open: no motor torque, no current.
+    """
+    for j in range(duty.shape[0]):
+        rkm = act[j, A_RKM]
+        if torque_on[j]:
+            i = (duty[j] * voltage - rkm * qd[j]) / resistance
+        else:
+            i = 0.0
+        tau = rkm * i
+        tmax = act[j, A_TAU_MAX]
+        if tau > tmax:
+            tau = tmax
+        elif tau < -tmax:
+            tau = -tmax
+        tau -= act[j, A_DAMPING] * qd[j]
+        if act[j, A_COULOMB] > 0.0:
+            tau -= act[j, A_COULOMB] * np.tanh(qd[j] / act[j, A_COULOMB_EPS])
+        tau_out[j] = tau
+        current_out[j] = i
+
+
+@njit(cache=True)
+def check_state(v, max_speed):
+    """STATUS_NONFINITE if any entry of v is not finite, STATUS_VELOCITY if any |v_i| > max_speed."""
+    for i in range(v.shape[0]):
+        if not np.isfinite(v[i]):
+            return STATUS_NONFINITE
+    for i in range(v.shape[0]):
+        if abs(v[i]) > max_speed:
+            return STATUS_VELOCITY
+    return STATUS_OK
+
+
+@njit(cache=True)
+def measured_angles(q, nq, act, out):
+    """Encoder reading [rad]: the joint angles plus each joint's encoder zero offset."""
+    nj = act.shape[0]
+    for j in range(nj):
+        out[j] = q[nq - nj + j] + act[j, A_ENC_OFFSET]
+
+
+@njit(cache=True)
+def control_tick(q, goal, act, scal, integ, prev_err, duty):
+    """One tick of every servo's position loop (backlash as a dead zone on the error)."""
+    nj = act.shape[0]
+    meas = np.empty(nj)
+    measured_angles(q, q.shape[0], act, meas)
+    g = np.empty(nj)
+    for j in range(nj):
+        err = goal[j] - meas[j]
+        b = act[j, A_BACKLASH]
+        if b > 0.0:
+            if err > b:
+                err -= b
+            elif err < -b:
+                err += b
+            else:
+                err = 0.0
+        g[j] = meas[j] + err
+    servo_duty(g, meas, integ, prev_err, scal[S_KP], scal[S_KI], scal[S_KD], scal[S_PWM_LIMIT], duty)
+
+
+@njit(cache=True)
+def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_f,
+                       feat_i, feat_f, tau, current, X, F):
+    """Actuator torques and ground forces as one generalized force ``tau`` (nv,); returns a status.
+
+    ``chain_i`` (nb, 3) = parent, q index, v index; ``chain_f`` (nb, 15) = placement rotation (9),
+    translation (3), axis (3); ``feat_i`` (nf, 2) = body, kind; ``feat_f`` (nf, 7) = centre (3),
+    axis (3), radius.
+    """
+    nb = chain_i.shape[0]
+    nj = act.shape[0]
+    nbase = v.shape[0] - nj
+    for i in range(nbase):
+        tau[i] = 0.0
+    tau_j = tau[nbase:]
+    actuator_torques(duty, v[nbase:], torque_on, act, scal[S_VOLTAGE], scal[S_RESISTANCE], tau_j, current)
+    jR = chain_f[:, 0:9].copy().reshape(nb, 3, 3)
+    return ground_forces(q, v, floating, chain_i[:, 0], jR, chain_f[:, 9:12], chain_f[:, 12:15],
+                         chain_i[:, 1], chain_i[:, 2], feat_i[:, 0], feat_i[:, 1], feat_f[:, 0:3],
+                         feat_f[:, 3:6], feat_f[:, 6], ground, tau, X, F, scal[S_MAX_DEPTH])
+
+
+@njit(cache=True)
+def integrate(q, v, a, dt, floating, q_out, v_out):
+    """Semi-implicit Euler: ``v+ = v + dt a``, ``q+ = pin.integrate(q, dt v+)``.
+
+    The free-flyer part is Pinocchio's ``integrate`` for its joint: ``M+ = M exp6(dt v+)``
+    with the SE(3) exponential in the root frame (``tests/test_kernels.py`` checks equality
+    with ``pin.integrate``); revolute coordinates add ``dt qdot+``.
+    """
+    nv = v.shape[0]
+    for i in range(nv):
+        v_out[i] = v[i] + dt * a[i]
+    start_q, start_v = 0, 0
+    if floating:
+        vx, vy, vz = v_out[0] * dt, v_out[1] * dt, v_out[2] * dt
+        wx, wy, wz = v_out[3] * dt, v_out[4] * dt, v_out[5] * dt
+        th2 = wx * wx + wy * wy + wz * wz
+        th = np.sqrt(th2)
+        if th < 1e-6:
+            A = 1.0 - th2 / 6.0
+            B = 0.5 - th2 / 24.0
+            C = 1.0 / 6.0 - th2 / 120.0
+        else:
+            A = np.sin(th) / th
+            B = (1.0 - np.cos(th)) / th2
+            C = (th - np.sin(th)) / (th2 * th)
+        # exp(w^) = I + A w^ + B w^2 ; V = I + B w^ + C w^2
+        dR = np.empty((3, 3))
+        W = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
+        W2 = W @ W
+        V = np.empty((3, 3))
+        for r in range(3):
+            for c in range(3):
+                eye = 1.0 if r == c else 0.0
+                dR[r, c] = eye + A * W[r, c] + B * W2[r, c]
+                V[r, c] = eye + B * W[r, c] + C * W2[r, c]
+        dp0 = V[0, 0] * vx + V[0, 1] * vy + V[0, 2] * vz
+        dp1 = V[1, 0] * vx + V[1, 1] * vy + V[1, 2] * vz
+        dp2 = V[2, 0] * vx + V[2, 1] * vy + V[2, 2] * vz
+        R = _quat_xyzw_to_rot(q[3], q[4], q[5], q[6])
+        for r in range(3):
+            q_out[r] = q[r] + R[r, 0] * dp0 + R[r, 1] * dp1 + R[r, 2] * dp2
+        # quaternion product q * dq (x, y, z, w), dq from the rotation vector
+        h = 0.5 * th
+        sh = np.sin(h) / th if th > 1e-12 else 0.5 - th2 / 48.0
+        dx, dy, dz, dw = wx * sh, wy * sh, wz * sh, np.cos(h)
+        x, y, z, w = q[3], q[4], q[5], q[6]
+        nx = w * dx + x * dw + y * dz - z * dy
+        ny = w * dy - x * dz + y * dw + z * dx
+        nz = w * dz + x * dy - y * dx + z * dw
+        nw = w * dw - x * dx - y * dy - z * dz
+        n = np.sqrt(nx * nx + ny * ny + nz * nz + nw * nw)
+        q_out[3], q_out[4], q_out[5], q_out[6] = nx / n, ny / n, nz / n, nw / n
+        start_q, start_v = 7, 6
+    for i in range(nv - start_v):
+        q_out[start_q + i] = q[start_q + i] + dt * v_out[start_v + i]
+
+
+@njit(cache=True)
+def pre_step(control, q, v, goal, integ, prev_err, duty, torque_on, act, scal, ground, floating,
+             chain_i, chain_f, feat_i, feat_f, tau, current, X, F):
+    """A servo tick (when ``control``) then :func:`generalized_forces`; returns the status."""
+    if control:
+        control_tick(q, goal, act, scal, integ, prev_err, duty)
+    return generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_f,
+                              feat_i, feat_f, tau, current, X, F)
+
+
+@njit(cache=True)
+def post_step(q, v, a, scal, floating, q_out, v_out):
+    """:func:`integrate` then :func:`check_state` on the new velocity; returns the status."""
+    integrate(q, v, a, scal[S_DT], floating, q_out, v_out)
+    return check_state(v_out, scal[S_MAX_SPEED])

@@ -1,0 +1,348 @@
+"""Semi-implicit (symplectic) Euler simulation of COBRA with a compliant Stribeck ground and
+Dynamixel servos driving DC motors.
+
+One physics step of length ``dt``::
+
+    a  = ABA(q, v, tau_motor(u, qdot) + J^T F_ground(q, v))      # Pinocchio, armature included
+    v+ = v + dt * a
+    q+ = pin.integrate(q, dt * v+)                                # on the configuration manifold
+
+All forces are evaluated explicitly at (q, v); the step is the symplectic Euler of the issue,
+with no implicit treatment. What bounds the stable step is the stiffest dissipative term, the
+regularised Coulomb friction ``s F_z / eps`` (see ``integrators.kernels.ground_forces``); with
+the default ``sgn_eps = 0.01 m/s`` and ``dt = 1 ms`` the step is stable over the parameter
+bounds of :mod:`cobra_model.parameters` (``tests/test_integrator.py`` checks the energy bounds).
+
+The servo's position loop runs at ``control_dt`` (an integer multiple of ``dt``, checked): its
+PWM duty is held between ticks while the motor torque, which depends on the joint speed through
+the back-EMF, is re-evaluated every physics step.
+
+Model effects beyond the nominal parameter table enter through parameters of the same set, all
+inactive by default: ``joint_coulomb`` [N m], ``torque_limit`` [N m], ``lateral_friction_ratio``,
+``backlash`` [rad] (a dead zone on the position loop's error), ``encoder_offset`` [rad]
+(the encoder reads ``q + offset``) and ``actuator_delay`` [s] (commands reach the servo late).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Callable
+
+import numpy as np
+import pinocchio as pin
+
+from cobra_model.design import SERVO_GEAR_RATIO
+from cobra_model.model import RobotModel
+from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters
+from integrators import kernels as K
+
+NO_TORQUE_LIMIT_NM = 1e9
+
+
+class SimulationDiverged(RuntimeError):
+    """The simulation produced NaN, an exploding velocity or a deep penetration."""
+
+
+@dataclass(frozen=True)
+class ServoGains:
+    """Dynamixel X position-loop registers (raw register values) and PWM limit (885 = 100 %)."""
+
+    p: int = 800
+    i: int = 0
+    d: int = 0
+    pwm_limit: int = 885
+
+    def __post_init__(self) -> None:
+        for name in ("p", "i", "d"):
+            if not 0 <= getattr(self, name) <= 16383:
+                raise ValueError(f"servo gain {name} = {getattr(self, name)} outside 0..16383")
+        if not 0 <= self.pwm_limit <= 885:
+            raise ValueError(f"PWM limit {self.pwm_limit} outside 0..885")
+
+
+@dataclass(frozen=True)
+class SimSettings:
+    """Numerical settings (not identified).
+
+    Attributes:
+        dt: physics step [s].
+        control_dt: servo position-loop period [s], an integer multiple of ``dt``.
+        gains: servo position-loop gains.
+        voltage: motor supply voltage [V].
+        sgn_eps: friction sign regularisation velocity [m/s] (see ``ground_forces``).
+        joint_coulomb_eps: joint Coulomb friction regularisation [rad/s].
+        max_depth: penetration [m] beyond which the run is declared diverged.
+        max_speed: generalized speed [m/s or rad/s] beyond which the run is declared diverged.
+    """
+
+    dt: float = 1e-3
+    control_dt: float = 1e-3
+    gains: ServoGains = field(default_factory=ServoGains)
+    voltage: float = 12.0
+    sgn_eps: float = 0.01
+    joint_coulomb_eps: float = 0.05
+    max_depth: float = 0.03
+    max_speed: float = 100.0
+
+    def __post_init__(self) -> None:
+        if not self.dt > 0:
+            raise ValueError(f"dt must be > 0 s, got {self.dt}")
+        ratio = self.control_dt / self.dt
+        if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
+            raise ValueError(
+                f"control_dt = {self.control_dt} s must be an integer multiple of dt = {self.dt} s"
+            )
+
+    @property
+    def substeps(self) -> int:
+        """Physics steps per control tick."""
+        return int(round(self.control_dt / self.dt))
+
+
+@dataclass(frozen=True)
+class SimState:
+    """Everything that evolves: time [s], q (nq,), v (nv,), the servo loop's memory (pulses),
+    the held PWM duty and the last motor current [A]; ``step`` counts physics steps."""
+
+    t: float
+    q: np.ndarray
+    v: np.ndarray
+    integ: np.ndarray
+    prev_err: np.ndarray
+    duty: np.ndarray
+    current: np.ndarray
+    step: int = 0
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A recorded rollout: samples every ``record_every`` physics steps.
+
+    Attributes:
+        t: (N,) s. q: (N, nq). v: (N, nv). q_goal: (N, n_joints) command the servos received
+        (rad). q_meas: (N, n_joints) encoder reading (rad). current: (N, n_joints) A.
+    """
+
+    t: np.ndarray
+    q: np.ndarray
+    v: np.ndarray
+    q_goal: np.ndarray
+    q_meas: np.ndarray
+    current: np.ndarray
+
+
+class Simulator:
+    """Immutable simulator of one robot model with one parameter set.
+
+    Args:
+        model: the robot (COBRA or any URDF loaded by :class:`RobotModel`).
+        params: physical parameters (actuator, ground, optional effects).
+        settings: numerical settings.
+    """
+
+    def __init__(self, model: RobotModel, params: ModelParameters | None = None,
+                 settings: SimSettings | None = None):
+        self.params = params if params is not None else ModelParameters.nominal()
+        self.settings = settings if settings is not None else SimSettings()
+        p, s = self.params, self.settings
+        n = model.n_joints
+        per_joint = lambda name, default: p.per_joint(name, default)[:n]  # noqa: E731
+        self.model = model.with_armature(per_joint("armature", None))
+        self._pin = self.model.pin_model
+        self._data = self._pin.createData()
+        ground = np.zeros(K.N_GROUND)
+        ground[K.G_K1], ground[K.G_K2] = p.k1, p.k2
+        ground[K.G_MU_C], ground[K.G_MU_S], ground[K.G_MU_V], ground[K.G_V_S] = p.mu_c, p.mu_s, p.mu_v, p.v_s
+        ground[K.G_EPS] = s.sgn_eps
+        ground[K.G_LATERAL] = p.get("lateral_friction_ratio", 1.0)
+        self.ground = ground
+        act = np.zeros((n, K.N_ACT))
+        act[:, K.A_DAMPING] = per_joint("joint_damping", None)
+        act[:, K.A_RKM] = SERVO_GEAR_RATIO * per_joint("motor_km", None)
+        act[:, K.A_COULOMB] = per_joint("joint_coulomb", 0.0)
+        act[:, K.A_TAU_MAX] = per_joint("torque_limit", NO_TORQUE_LIMIT_NM)
+        act[:, K.A_COULOMB_EPS] = s.joint_coulomb_eps
+        act[:, K.A_ENC_OFFSET] = per_joint("encoder_offset", 0.0)
+        act[:, K.A_BACKLASH] = per_joint("backlash", 0.0)
+        self.act = act
+        self.delay_ticks = int(round(p.get("actuator_delay", 0.0) / s.control_dt))
+        g = s.gains
+        scal = np.zeros(K.N_SCAL)
+        scal[K.S_DT], scal[K.S_VOLTAGE], scal[K.S_RESISTANCE] = s.dt, s.voltage, WINDING_RESISTANCE_OHM
+        scal[K.S_MAX_DEPTH], scal[K.S_MAX_SPEED] = s.max_depth, s.max_speed
+        scal[K.S_KP], scal[K.S_KI], scal[K.S_KD], scal[K.S_PWM_LIMIT] = g.p / 128.0, g.i / 65536.0, g.d / 16.0, g.pwm_limit
+        self.scal = scal
+        ch, f = self.model.chain, self.model.features
+        self._chain_i = np.ascontiguousarray(np.column_stack([ch.parents, ch.qidx, ch.vidx]), dtype=np.int64)
+        self._chain_f = np.ascontiguousarray(np.column_stack([ch.jR.reshape(-1, 9), ch.jp, ch.axes]))
+        self._feat_i = np.ascontiguousarray(np.column_stack([f.body, f.kind]), dtype=np.int64).reshape(-1, 2)
+        self._feat_f = np.ascontiguousarray(np.column_stack([f.centre, f.axis, f.radius])).reshape(-1, 7)
+        self._X = np.empty((len(f), 3))
+        self._F = np.empty((len(f), 3))
+
+    def with_gains(self, gains: ServoGains) -> "Simulator":
+        """A simulator identical but for the servo gains."""
+        return Simulator(self.model, self.params, replace(self.settings, gains=gains))
+
+    # -- states -----------------------------------------------------------------------------
+    def state(self, q: np.ndarray, v: np.ndarray | None = None, t: float = 0.0) -> SimState:
+        """A state at configuration q (nq,), velocity v (default zero) and time t [s]."""
+        n = self.model.n_joints
+        v = np.zeros(self.model.nv) if v is None else np.asarray(v, dtype=float).copy()
+        return SimState(t, np.asarray(q, dtype=float).copy(), v, np.zeros(n), np.zeros(n),
+                        np.zeros(n), np.zeros(n))
+
+    def rest_state(self, q_joints: np.ndarray | None = None, head_xy: tuple[float, float] = (0.0, 0.0),
+                   heading_rad: float = 0.0, base_quat_wxyz: np.ndarray | None = None) -> SimState:
+        """At rest in joint pose ``q_joints`` with the lowest contact point touching the ground.
+
+        The root is placed at ``head_xy`` with yaw ``heading_rad`` (or orientation
+        ``base_quat_wxyz``), then lifted or lowered so that the lowest contact point is at z = 0.
+        """
+        model = self.model
+        if base_quat_wxyz is None:
+            half = 0.5 * heading_rad
+            base_quat_wxyz = np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
+        q = model.configuration(q_joints, np.array([head_xy[0], head_xy[1], 0.0]), base_quat_wxyz)
+        if model.chain.floating and len(model.features):
+            q[2] -= model.contact_points(q)[:, 2].min()
+        return self.state(q)
+
+    # -- stepping ---------------------------------------------------------------------------
+    def _measured(self, q: np.ndarray) -> np.ndarray:
+        """Encoder reading [rad] (n_joints,) at configuration q."""
+        out = np.empty(self.model.n_joints)
+        K.measured_angles(q, self.model.nq, self.act, out)
+        return out
+
+    def _physics(self, q: np.ndarray, v: np.ndarray, duty: np.ndarray, torque_on: np.ndarray,
+                 current: np.ndarray, t: float, tau: np.ndarray, q_out: np.ndarray,
+                 v_out: np.ndarray) -> None:
+        """One physics step from (q, v) into (q_out, v_out); raises on divergence."""
+        status = K.generalized_forces(q, v, duty, torque_on, self.act, self.scal, self.ground,
+                                      self.model.chain.floating, self._chain_i, self._chain_f,
+                                      self._feat_i, self._feat_f, tau, current, self._X, self._F)
+        if status != K.STATUS_OK:
+            self._raise(status, t, q, v)
+        a = pin.aba(self._pin, self._data, q, v, tau)
+        K.integrate(q, v, a, self.settings.dt, self.model.chain.floating, q_out, v_out)
+        status = K.check_state(v_out, self.settings.max_speed)
+        if status != K.STATUS_OK:
+            self._raise(status, t, q, v_out)
+
+    def _raise(self, status: int, t: float, q: np.ndarray, v: np.ndarray) -> None:
+        if status == K.STATUS_PENETRATION:
+            k = int(np.argmin(self._X[:, 2]))
+            raise SimulationDiverged(
+                f"at t = {t:.4f} s contact point {self.model.features.names[k]} penetrated "
+                f"{-self._X[k, 2] * 100:.2f} cm into the ground (limit "
+                f"{self.settings.max_depth * 100:.1f} cm): ground too soft or the step diverged"
+            )
+        if status == K.STATUS_NONFINITE:
+            bad = np.flatnonzero(~np.isfinite(v))
+            raise SimulationDiverged(f"at t = {t:.4f} s velocity became NaN/inf at coordinates {bad.tolist()}")
+        i = int(np.argmax(np.abs(v)))
+        raise SimulationDiverged(
+            f"at t = {t:.4f} s velocity coordinate {i} reached {v[i]:.3g} (limit "
+            f"{self.settings.max_speed}): the step is unstable (try a smaller --dt)"
+        )
+
+    def step(self, state: SimState, q_goal: np.ndarray, torque_on: np.ndarray | None = None) -> SimState:
+        """Advance one physics step with servo goal angles ``q_goal`` (n_joints,) [rad].
+
+        The position loop runs when ``state.step`` is a multiple of ``settings.substeps``.
+        ``torque_on`` (n_joints,) bool, default all on.
+        """
+        integ, prev_err, duty, current = (state.integ.copy(), state.prev_err.copy(),
+                                          state.duty.copy(), state.current.copy())
+        if state.step % self.settings.substeps == 0:
+            K.control_tick(state.q, np.asarray(q_goal, dtype=float), self.act, self.scal, integ, prev_err, duty)
+        on = np.ones(self.model.n_joints, dtype=np.bool_) if torque_on is None else np.asarray(torque_on, dtype=np.bool_)
+        q, v = np.empty(self.model.nq), np.empty(self.model.nv)
+        self._physics(state.q, state.v, duty, on, current, state.t, np.empty(self.model.nv), q, v)
+        return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1)
+
+    def motor_current(self, state: SimState) -> np.ndarray:
+        """Motor current [A] (n_joints,) during the last step."""
+        return state.current.copy()
+
+    def commands(self, q_ref: Callable[[np.ndarray], np.ndarray] | np.ndarray, t0: float,
+                 n_ticks: int) -> np.ndarray:
+        """Servo goals (n_ticks, n_joints) [rad] at the control ticks from ``t0``, delay applied.
+
+        ``q_ref`` is an array of commands per tick or a function of a time array [s] returning
+        (len(t), n_joints) (e.g. ``SidewindingGait.q_ref``).
+        """
+        if callable(q_ref):
+            table = np.asarray(q_ref(t0 + np.arange(n_ticks) * self.settings.control_dt), dtype=float)
+        else:
+            table = np.asarray(q_ref, dtype=float)
+            if table.ndim != 2 or table.shape[1] != self.model.n_joints or len(table) == 0:
+                raise ValueError(f"command table must be (n_ticks, {self.model.n_joints}), got {table.shape}")
+            if len(table) < n_ticks:
+                table = np.vstack([table, np.repeat(table[-1:], n_ticks - len(table), axis=0)])
+            table = table[:n_ticks]
+        if self.delay_ticks:
+            idx = np.maximum(np.arange(n_ticks) - self.delay_ticks, 0)
+            table = table[idx]
+        return np.ascontiguousarray(table)
+
+    def rollout(self, state: SimState, q_ref: Callable[[np.ndarray], np.ndarray] | np.ndarray,
+                duration: float, *, record_every: int = 1,
+                progress: Callable[[float], None] | None = None) -> Trajectory:
+        """Simulate ``duration`` [s] from ``state`` with commands ``q_ref``.
+
+        Args:
+            state: initial state (its servo loop is assumed to tick at ``state.step == 0``).
+            q_ref: commands at each control tick from ``state.t``: an array (n_ticks, n_joints)
+                [rad] (the last row is held if short) or a function of a time array (see
+                :meth:`commands`).
+            duration: simulated time [s].
+            record_every: record one sample per this many physics steps (the first sample is
+                the initial state).
+            progress: called with the fraction done (0..1) about 100 times.
+
+        Raises:
+            SimulationDiverged: naming the time and the offending contact point or coordinate.
+        """
+        s = self.settings
+        sub = s.substeps
+        n_steps = int(round(duration / s.dt))
+        n_ticks = n_steps // sub + 1
+        goals = self.commands(q_ref, state.t, n_ticks)
+        n_rec = n_steps // record_every + 1
+        nj, nq, nv = self.model.n_joints, self.model.nq, self.model.nv
+        T = state.t + np.arange(n_rec) * record_every * s.dt
+        Q, V = np.empty((n_rec, nq)), np.empty((n_rec, nv))
+        G, M, C = np.empty((n_rec, nj)), np.empty((n_rec, nj)), np.empty((n_rec, nj))
+        integ, prev_err = state.integ.copy(), state.prev_err.copy()
+        duty, current = state.duty.copy(), state.current.copy()
+        q, v = state.q.copy(), state.v.copy()
+        q_next, v_next, tau = np.empty(nq), np.empty(nv), np.empty(nv)
+        on = np.ones(nj, dtype=np.bool_)
+        act, scal, ground, floating = self.act, self.scal, self.ground, self.model.chain.floating
+        ci, cf, fi, ff, X, F = self._chain_i, self._chain_f, self._feat_i, self._feat_f, self._X, self._F
+        pinm, data = self._pin, self._data
+        report_every = max(1, n_steps // 100)
+        pre, post, aba = K.pre_step, K.post_step, pin.aba
+        for i in range(n_steps + 1):
+            goal = goals[i // sub]
+            if i % record_every == 0:
+                r = i // record_every
+                Q[r], V[r], G[r], C[r] = q, v, goal, current
+                K.measured_angles(q, nq, act, M[r])
+            if i == n_steps:
+                break
+            status = pre(i % sub == 0, q, v, goal, integ, prev_err, duty, on, act, scal, ground,
+                         floating, ci, cf, fi, ff, tau, current, X, F)
+            if status:
+                self._raise(status, state.t + i * s.dt, q, v)
+            status = post(q, v, aba(pinm, data, q, v, tau), scal, floating, q_next, v_next)
+            if status:
+                self._raise(status, state.t + i * s.dt, q, v_next)
+            q, q_next = q_next, q
+            v, v_next = v_next, v
+            if progress is not None and i % report_every == 0:
+                progress(i / n_steps)
+        if progress is not None:
+            progress(1.0)
+        return Trajectory(T, Q, V, G, M, C)
