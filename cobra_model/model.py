@@ -188,6 +188,18 @@ class RobotModel:
         model.armature = arm
         return type(self)(model, self.features, self.urdf_path)
 
+    def with_gravity(self, gravity: np.ndarray) -> "RobotModel":
+        """A copy with gravity vector ``gravity`` [m/s^2] (e.g. zeros for invariance tests)."""
+        model = self.pin_model.copy()
+        model.gravity.linear = np.asarray(gravity, dtype=float)
+        return type(self)(model, self.features, self.urdf_path)
+
+    def without_contacts(self) -> "RobotModel":
+        """A copy with no ground-contact features (a robot in free space)."""
+        empty = ContactFeatures(np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, 3)),
+                                np.zeros((0, 3)), np.zeros(0), ())
+        return type(self)(self.pin_model, empty, self.urdf_path)
+
     def with_link_mass(self, body: str, delta_kg: float) -> "RobotModel":
         """A copy with ``delta_kg`` added to link ``body`` at its centre of mass (inertia scaled)."""
         model = self.pin_model.copy()

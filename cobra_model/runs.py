@@ -46,7 +46,7 @@ _TIME_ALIASES = ("time", "times", "t_s", "time_s", "timestamp", "stamp")
 
 
 def joint_columns(prefix: str) -> tuple[str, ...]:
-    """Column names ``prefix_1 .. prefix_11`` (``prefix`` is ``q_ref``, ``q``, ``dq`` or ``current``)."""
+    """Column names ``prefix_1 .. prefix_11`` (prefix ``q_ref``, ``q``, ``dq`` or ``current``)."""
     return tuple(f"{prefix}_{k}" for k in range(1, NUM_JOINTS + 1))
 
 
@@ -100,7 +100,7 @@ def _closest_name(name: str, candidates: Sequence[str]) -> str | None:
 
 
 def first_non_increasing(t: np.ndarray) -> int | None:
-    """Index ``i`` of the first sample with ``t[i] <= t[i-1]``, or ``None`` if strictly increasing."""
+    """Index ``i`` of the first sample with ``t[i] <= t[i-1]``; ``None`` if strictly increasing."""
     bad = np.flatnonzero(np.diff(t) <= 0)
     return int(bad[0]) + 1 if bad.size else None
 
@@ -118,9 +118,8 @@ def _quaternion_problems(quat: np.ndarray) -> tuple[int, str] | None:
         )
     if non_unit.size:
         i = int(non_unit[0])
-        candidates.append(
-            (i, f"quaternion norm {np.linalg.norm(quat[i]):.6g} is not 1 (tolerance {QUAT_NORM_TOL:g})")
-        )
+        norm = np.linalg.norm(quat[i])
+        candidates.append((i, f"quaternion norm {norm:.6g} is not 1 (tolerance {QUAT_NORM_TOL:g})"))
     return min(candidates) if candidates else None
 
 
@@ -187,13 +186,15 @@ class Run:
             raise InputError(f"Run.t: expected a non-empty 1-D array of times, got shape {t.shape}")
         n = t.size
         if not np.isfinite(t).all():
-            raise InputError(f"Run.t: sample {int(np.flatnonzero(~np.isfinite(t))[0])} is not finite")
+            bad = int(np.flatnonzero(~np.isfinite(t))[0])
+            raise InputError(f"Run.t: sample {bad} is not finite")
         if t[0] < 0:
             raise InputError(f"Run.t: first sample is {t[0]:g} s; expected t[0] >= 0")
         i = first_non_increasing(t)
         if i is not None:
             raise InputError(
-                f"Run.t: time not strictly increasing at sample {i} ({t[i - 1]:g} s then {t[i]:g} s)"
+                f"Run.t: time not strictly increasing at sample {i} "
+                f"({t[i - 1]:g} s then {t[i]:g} s)"
             )
         set_ = object.__setattr__
         set_(self, "t", t)

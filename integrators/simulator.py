@@ -287,7 +287,7 @@ class Simulator:
         return np.ascontiguousarray(table)
 
     def rollout(self, state: SimState, q_ref: Callable[[np.ndarray], np.ndarray] | np.ndarray,
-                duration: float, *, record_every: int = 1,
+                duration: float, *, record_every: int = 1, torque_on: np.ndarray | None = None,
                 progress: Callable[[float], None] | None = None) -> Trajectory:
         """Simulate ``duration`` [s] from ``state`` with commands ``q_ref``.
 
@@ -299,6 +299,8 @@ class Simulator:
             duration: simulated time [s].
             record_every: record one sample per this many physics steps (the first sample is
                 the initial state).
+            torque_on: (n_joints,) bool, motors powered (default all); an unpowered motor is an
+                open circuit (no torque, no back-EMF braking), its gearbox damping remains.
             progress: called with the fraction done (0..1) about 100 times.
 
         Raises:
@@ -318,7 +320,7 @@ class Simulator:
         duty, current = state.duty.copy(), state.current.copy()
         q, v = state.q.copy(), state.v.copy()
         q_next, v_next, tau = np.empty(nq), np.empty(nv), np.empty(nv)
-        on = np.ones(nj, dtype=np.bool_)
+        on = np.ones(nj, dtype=np.bool_) if torque_on is None else np.asarray(torque_on, dtype=np.bool_)
         act, scal, ground, floating = self.act, self.scal, self.ground, self.model.chain.floating
         ci, cf, fi, ff, X, F = self._chain_i, self._chain_f, self._feat_i, self._feat_f, self._X, self._F
         pinm, data = self._pin, self._data

@@ -1,0 +1,81 @@
+"""``cobra emulate``: COBRA's servo bus on a pseudo-terminal, moved by the simulator.
+
+Example (two terminals)::
+
+    cobra emulate --port-link /tmp/cobra-bus
+    cobra record --config examples/bus.toml --port /tmp/cobra-bus --duration 10 --out emu.csv
+
+The emulator prints the pty path, makes ``--port-link`` a symlink to it (never replacing a file
+that is not a symlink) and serves until Ctrl-C, ``--duration`` or an ``unplug`` fault. Pass the
+recorder's ``--config`` to wire IDs, zero offsets and directions as that configuration says.
+Faults: ``--fault KIND[:ID][@SECONDS][xCOUNT]`` (repeatable), seconds counted from the first
+torque on; kinds crc, drop, silent, overload, overheating, voltage, unplug.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+from hardware.config import load_bus_config
+from hardware.emulator import BusEmulator, EmulatorStats
+from hardware.faults import parse_fault
+from hardware.plant import KinematicPlant, Plant, SimulatorPlant
+
+
+def add_parser(subparsers: argparse._SubParsersAction) -> None:
+    """Register ``cobra emulate``."""
+    p = subparsers.add_parser(
+        "emulate", help="emulate the servo bus on a pty, driven by the simulator",
+        description=__doc__.splitlines()[0])
+    p.add_argument("--port-link", help="make this path a symlink to the pty (e.g. /tmp/cobra-bus)")
+    p.add_argument("--config", help="bus configuration whose IDs, offsets, directions and model number to emulate")
+    p.add_argument("--plant", choices=("simulator", "kinematic"), default="simulator",
+                   help="what moves the servos: COBRA's simulator (default) or ideal servos")
+    p.add_argument("--fault", action="append", default=[], metavar="SPEC",
+                   help="inject a fault, e.g. crc@2x3, drop@2x5, silent:5@3, overload:3@4, unplug@5")
+    p.add_argument("--duration", type=float, help="stop after this many seconds of wall time")
+    p.add_argument("--report-every", type=float, default=5.0,
+                   help="print the real-time factor every this many seconds (0: never)")
+    p.set_defaults(func=run)
+
+
+def _describe(stats: EmulatorStats) -> str:
+    return (f"emulated {stats.emulated_time_s:.1f} s in {stats.wall_time_s:.1f} s "
+            f"(real-time factor {stats.real_time_factor:.2f}); {stats.packets} packets, "
+            f"{stats.replies} replies, {stats.crc_errors} bad CRCs received, "
+            f"{stats.dropped} replies dropped, {stats.corrupted} corrupted")
+
+
+def run(args: argparse.Namespace) -> int:
+    """Serve the emulated bus until Ctrl-C, ``--duration`` or an unplug fault."""
+    faults = [parse_fault(spec) for spec in args.fault]
+    config = load_bus_config(args.config) if args.config else None
+    plant: Plant = SimulatorPlant.nominal() if args.plant == "simulator" else KinematicPlant()
+    emulator = BusEmulator(
+        plant, faults=faults,
+        joints=config.joints if config else None,
+        **({"model_number": config.servo.model_number} if config else {}))
+    port = emulator.start()
+    try:
+        print(f"pty: {port}", flush=True)
+        if args.port_link:
+            print(f"link: {emulator.link(args.port_link)} -> {port}", flush=True)
+        deadline = time.monotonic() + args.duration if args.duration else None
+        next_report = time.monotonic() + args.report_every if args.report_every > 0 else None
+        while not emulator.wait_closed(0.2):
+            now = time.monotonic()
+            if deadline is not None and now >= deadline:
+                break
+            if next_report is not None and now >= next_report:
+                print(_describe(emulator.stats()), flush=True)
+                next_report = now + args.report_every
+    finally:
+        emulator.stop()
+        stats = emulator.stats()
+        print(_describe(stats), flush=True)
+        for note in stats.notes:
+            print(f"note: {note}", flush=True)
+    if stats.error:
+        print(f"cobra emulate: the emulated robot failed: {stats.error}")
+        return 1
+    return 0

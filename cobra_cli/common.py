@@ -1,0 +1,21 @@
+"""Helpers shared by the subcommands: loading parameters, refusing to overwrite outputs."""
+from __future__ import annotations
+
+from pathlib import Path
+
+from cobra_model.parameters import ModelParameters
+
+
+def load_params(path: str | Path | None) -> ModelParameters:
+    """The parameter file at ``path``, or the nominal parameters when None."""
+    return ModelParameters.nominal() if path is None else ModelParameters.load(path)
+
+
+def check_writable(path: str | Path, force: bool) -> Path:
+    """Refuse to overwrite an existing file unless ``force`` (names the path and the flag)."""
+    path = Path(path)
+    if path.exists() and not force:
+        raise FileExistsError(f"{path} exists; pass --force to overwrite it")
+    if path.parent and not path.parent.exists():
+        raise FileNotFoundError(f"output directory {path.parent} does not exist")
+    return path
