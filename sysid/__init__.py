@@ -1,0 +1,1 @@
+"""Identification: gap metrics, the objective, least squares, PPO and the discrepancy workflow."""
