@@ -18,6 +18,8 @@ COMMANDS: tuple[str, ...] = (
     "demo",
     "info",
     "simulate",
+    "compare",
+    "import-optitrack",
 )
 
 

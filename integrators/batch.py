@@ -1,0 +1,110 @@
+"""Batched rollouts: many environments stepped together (Pinocchio ``abaInParallel``).
+
+Every environment shares the robot and the transmission inertia (``armature``: Pinocchio's
+``ModelPool`` hands its models to threads, not to batch entries, so the inertia must be common)
+and may differ in every other parameter (ground, damping, motor constant, effects) and in its
+state and commands. The forces of all environments are one compiled call, the dynamics one
+``abaInParallel`` call and the update one compiled call per step.
+"""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+import pinocchio as pin
+from numba import njit, prange
+
+from cobra_model.errors import InputError
+from cobra_model.model import RobotModel
+from cobra_model.parameters import ModelParameters
+from integrators import kernels as K
+from integrators.simulator import SimSettings, SimState, Simulator
+
+
+@njit(cache=True, parallel=True)
+def _batch_forces(control, Q, V, goals, integ, prev_err, duty, on, act, scal, ground, floating,
+                  chain_i, chain_f, feat_i, feat_f, TAU, current, status):
+    n = Q.shape[0]
+    nf = feat_i.shape[0]
+    for e in prange(n):
+        X = np.empty((nf, 3))
+        F = np.empty((nf, 3))
+        status[e] = K.pre_step(control, Q[e], V[e], goals[e], integ[e], prev_err[e], duty[e], on, act[e],
+                               scal, ground[e], floating, chain_i, chain_f, feat_i, feat_f, TAU[e],
+                               current[e], X, F)
+
+
+@njit(cache=True, parallel=True)
+def _batch_update(Q, V, A, scal, floating, Q_out, V_out, status):
+    for e in prange(Q.shape[0]):
+        s = K.post_step(Q[e], V[e], A[e], scal, floating, Q_out[e], V_out[e])
+        if s != 0:
+            status[e] = s
+
+
+class BatchSimulator:
+    """N simulators of one robot stepped in lock-step.
+
+    Args:
+        model: the robot.
+        params: one parameter set per environment (same ``armature``).
+        settings: numerical settings shared by all.
+        threads: worker threads for ABA and the kernels.
+    """
+
+    def __init__(self, model: RobotModel, params: Sequence[ModelParameters], settings: SimSettings | None = None,
+                 threads: int = 2):
+        if not params:
+            raise InputError("a batch needs at least one parameter set")
+        arm = {tuple(p.per_joint("armature")) for p in params}
+        if len(arm) != 1:
+            raise InputError("all parameter sets of a batch must share 'armature' (Pinocchio's ModelPool "
+                             "gives one model per thread); evaluate other armatures in other batches")
+        self.sims = [Simulator(model, p, settings) for p in params]
+        first = self.sims[0]
+        self.settings = first.settings
+        self.model = first.model
+        self.threads = threads
+        self.pool = pin.ModelPool(self.model.pin_model, threads)
+        self.act = np.ascontiguousarray(np.stack([s.act for s in self.sims]))
+        self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
+        self._first = first
+
+    def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray]:
+        """Step every environment for ``duration`` [s]; ``goals`` (n_ticks, N, n_joints) [rad].
+
+        Returns the final (N, nq) configurations and (N, nv) velocities.
+
+        Raises:
+            InputError: shape mismatch. RuntimeError: an environment diverged (names which).
+        """
+        n = len(self.sims)
+        s, f = self.settings, self._first
+        n_steps = int(round(duration / s.dt))
+        if goals.ndim != 3 or goals.shape[1:] != (n, self.model.n_joints):
+            raise InputError(f"goals must be (n_ticks, {n}, {self.model.n_joints}), got {goals.shape}")
+        Q = np.ascontiguousarray(np.stack([st.q for st in states]))
+        V = np.ascontiguousarray(np.stack([st.v for st in states]))
+        Qn, Vn = np.empty_like(Q), np.empty_like(V)
+        TAU = np.zeros_like(V)
+        A = np.empty((self.model.nv, n), order="F")
+        integ = np.stack([st.integ for st in states])
+        prev = np.stack([st.prev_err for st in states])
+        duty = np.stack([st.duty for st in states])
+        cur = np.zeros_like(duty)
+        status = np.zeros(n, dtype=np.int64)
+        on = np.ones(self.model.n_joints, dtype=np.bool_)
+        sub = s.substeps
+        for i in range(n_steps):
+            g = goals[min(i // sub, len(goals) - 1)]
+            _batch_forces(i % sub == 0, Q, V, g, integ, prev, duty, on, self.act, f.scal, self.ground,
+                          self.model.chain.floating, f._chain_i, f._chain_f, f._feat_i, f._feat_f, TAU, cur, status)
+            pin.abaInParallel(self.threads, self.pool, Q.T, V.T, TAU.T, A)
+            _batch_update(Q, V, np.ascontiguousarray(A.T), f.scal, self.model.chain.floating, Qn, Vn, status)
+            if status.any():
+                bad = np.flatnonzero(status)
+                raise RuntimeError(f"environments {bad.tolist()} diverged at t = {i * s.dt:.4f} s (status "
+                                   f"{status[bad].tolist()})")
+            Q, Qn = Qn, Q
+            V, Vn = Vn, V
+        return Q, V
