@@ -1,0 +1,1 @@
+"""Driving and recording COBRA through dynamixel-sdk, and a servo-bus emulator."""
