@@ -18,7 +18,7 @@ $(STAMP): $(PY) pyproject.toml
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(VENV)/bin/cobra demo
+	$(VENV)/bin/cobra demo --force  # refreshes its own plots in out/demo
 
 test: $(STAMP)
 	$(PY) -m pytest -q

@@ -5,7 +5,7 @@ import argparse
 
 import numpy as np
 
-from cobra_cli.common import check_writable, load_params
+from cobra_cli.common import check_run_writable, load_params
 from cobra_cli.progress import progress_bar
 from cobra_model.errors import InputError
 from cobra_model.gait import SidewindingGait
@@ -35,7 +35,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = check_writable(args.out, args.force)
+    out = check_run_writable(args.out, args.force)
     params = load_params(args.params)
     try:
         settings = SimSettings(dt=args.dt, control_dt=args.control_dt or args.dt)

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 
 
@@ -19,3 +20,12 @@ def check_writable(path: str | Path, force: bool) -> Path:
     if path.parent and not path.parent.exists():
         raise FileNotFoundError(f"output directory {path.parent} does not exist")
     return path
+
+
+def check_run_writable(path: str | Path, force: bool) -> Path:
+    """A run's CSV path (must end in ``.csv``); refuses if the CSV or its JSON sidecar exists."""
+    path = Path(path)
+    if path.suffix.lower() != ".csv":
+        raise InputError(f"--out {path}: a run file must end in .csv (its sidecar is NAME.json)")
+    check_writable(path.with_suffix(".json"), force)
+    return check_writable(path, force)
