@@ -23,15 +23,11 @@ from integrators.simulator import SimSettings, SimState, Simulator
 
 @njit(cache=True, parallel=True)
 def _batch_forces(control, Q, V, goals, integ, prev_err, duty, on, act, scal, ground, floating,
-                  chain_i, chain_f, feat_i, feat_f, TAU, current, status):
-    n = Q.shape[0]
-    nf = feat_i.shape[0]
-    for e in prange(n):
-        X = np.empty((nf, 3))
-        F = np.empty((nf, 3))
+                  chain_i, chain_R, chain_f, feat_i, feat_f, TAU, current, X, F, status):
+    for e in prange(Q.shape[0]):
         status[e] = K.pre_step(control, Q[e], V[e], goals[e], integ[e], prev_err[e], duty[e], on, act[e],
-                               scal, ground[e], floating, chain_i, chain_f, feat_i, feat_f, TAU[e],
-                               current[e], X, F)
+                               scal, ground[e], floating, chain_i, chain_R, chain_f, feat_i, feat_f, TAU[e],
+                               current[e], X[e], F[e])
 
 
 @njit(cache=True, parallel=True)
@@ -93,14 +89,17 @@ class BatchSimulator:
         duty = np.stack([st.duty for st in states])
         cur = np.zeros_like(duty)
         status = np.zeros(n, dtype=np.int64)
+        X = np.empty((n, len(self.model.features), 3))
+        F = np.empty_like(X)
         on = np.ones(self.model.n_joints, dtype=np.bool_)
         sub = s.substeps
         for i in range(n_steps):
             g = goals[min(i // sub, len(goals) - 1)]
             _batch_forces(i % sub == 0, Q, V, g, integ, prev, duty, on, self.act, f.scal, self.ground,
-                          self.model.chain.floating, f._chain_i, f._chain_f, f._feat_i, f._feat_f, TAU, cur, status)
+                          self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
+                          TAU, cur, X, F, status)
             pin.abaInParallel(self.threads, self.pool, Q.T, V.T, TAU.T, A)
-            _batch_update(Q, V, np.ascontiguousarray(A.T), f.scal, self.model.chain.floating, Qn, Vn, status)
+            _batch_update(Q, V, A.T, f.scal, self.model.chain.floating, Qn, Vn, status)
             if status.any():
                 bad = np.flatnonzero(status)
                 raise RuntimeError(f"environments {bad.tolist()} diverged at t = {i * s.dt:.4f} s (status "

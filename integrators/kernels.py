@@ -326,23 +326,21 @@ def control_tick(q, goal, act, scal, integ, prev_err, duty):
 
 
 @njit(cache=True)
-def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_f,
+def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_R, chain_f,
                        feat_i, feat_f, tau, current, X, F):
     """Actuator torques and ground forces as one generalized force ``tau`` (nv,); returns a status.
 
-    ``chain_i`` (nb, 3) = parent, q index, v index; ``chain_f`` (nb, 15) = placement rotation (9),
-    translation (3), axis (3); ``feat_i`` (nf, 2) = body, kind; ``feat_f`` (nf, 7) = centre (3),
-    axis (3), radius.
+    ``chain_i`` (nb, 3) = parent, q index, v index; ``chain_R`` (nb, 3, 3) = placement rotation;
+    ``chain_f`` (nb, 6) = placement translation (3), axis (3); ``feat_i`` (nf, 2) = body, kind;
+    ``feat_f`` (nf, 7) = centre (3), axis (3), radius.
     """
-    nb = chain_i.shape[0]
     nj = act.shape[0]
     nbase = v.shape[0] - nj
     for i in range(nbase):
         tau[i] = 0.0
     tau_j = tau[nbase:]
     actuator_torques(duty, v[nbase:], torque_on, act, scal[S_VOLTAGE], scal[S_RESISTANCE], tau_j, current)
-    jR = chain_f[:, 0:9].copy().reshape(nb, 3, 3)
-    return ground_forces(q, v, floating, chain_i[:, 0], jR, chain_f[:, 9:12], chain_f[:, 12:15],
+    return ground_forces(q, v, floating, chain_i[:, 0], chain_R, chain_f[:, 0:3], chain_f[:, 3:6],
                          chain_i[:, 1], chain_i[:, 2], feat_i[:, 0], feat_i[:, 1], feat_f[:, 0:3],
                          feat_f[:, 3:6], feat_f[:, 6], ground, tau, X, F, scal[S_MAX_DEPTH])
 
@@ -406,12 +404,12 @@ def integrate(q, v, a, dt, floating, q_out, v_out):
 
 @njit(cache=True)
 def pre_step(control, q, v, goal, integ, prev_err, duty, torque_on, act, scal, ground, floating,
-             chain_i, chain_f, feat_i, feat_f, tau, current, X, F):
+             chain_i, chain_R, chain_f, feat_i, feat_f, tau, current, X, F):
     """A servo tick (when ``control``) then :func:`generalized_forces`; returns the status."""
     if control:
         control_tick(q, goal, act, scal, integ, prev_err, duty)
-    return generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_f,
-                              feat_i, feat_f, tau, current, X, F)
+    return generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_R,
+                              chain_f, feat_i, feat_f, tau, current, X, F)
 
 
 @njit(cache=True)

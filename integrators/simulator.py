@@ -173,7 +173,8 @@ class Simulator:
         self.scal = scal
         ch, f = self.model.chain, self.model.features
         self._chain_i = np.ascontiguousarray(np.column_stack([ch.parents, ch.qidx, ch.vidx]), dtype=np.int64)
-        self._chain_f = np.ascontiguousarray(np.column_stack([ch.jR.reshape(-1, 9), ch.jp, ch.axes]))
+        self._chain_R = np.ascontiguousarray(ch.jR)
+        self._chain_f = np.ascontiguousarray(np.column_stack([ch.jp, ch.axes]))
         self._feat_i = np.ascontiguousarray(np.column_stack([f.body, f.kind]), dtype=np.int64).reshape(-1, 2)
         self._feat_f = np.ascontiguousarray(np.column_stack([f.centre, f.axis, f.radius])).reshape(-1, 7)
         self._X = np.empty((len(f), 3))
@@ -219,7 +220,7 @@ class Simulator:
                  v_out: np.ndarray) -> None:
         """One physics step from (q, v) into (q_out, v_out); raises on divergence."""
         status = K.generalized_forces(q, v, duty, torque_on, self.act, self.scal, self.ground,
-                                      self.model.chain.floating, self._chain_i, self._chain_f,
+                                      self.model.chain.floating, self._chain_i, self._chain_R, self._chain_f,
                                       self._feat_i, self._feat_f, tau, current, self._X, self._F)
         if status != K.STATUS_OK:
             self._raise(status, t, q, v)
@@ -322,7 +323,8 @@ class Simulator:
         q_next, v_next, tau = np.empty(nq), np.empty(nv), np.empty(nv)
         on = np.ones(nj, dtype=np.bool_) if torque_on is None else np.asarray(torque_on, dtype=np.bool_)
         act, scal, ground, floating = self.act, self.scal, self.ground, self.model.chain.floating
-        ci, cf, fi, ff, X, F = self._chain_i, self._chain_f, self._feat_i, self._feat_f, self._X, self._F
+        ci, cR, cf = self._chain_i, self._chain_R, self._chain_f
+        fi, ff, X, F = self._feat_i, self._feat_f, self._X, self._F
         pinm, data = self._pin, self._data
         report_every = max(1, n_steps // 100)
         pre, post, aba = K.pre_step, K.post_step, pin.aba
@@ -335,7 +337,7 @@ class Simulator:
             if i == n_steps:
                 break
             status = pre(i % sub == 0, q, v, goal, integ, prev_err, duty, on, act, scal, ground,
-                         floating, ci, cf, fi, ff, tau, current, X, F)
+                         floating, ci, cR, cf, fi, ff, tau, current, X, F)
             if status:
                 self._raise(status, state.t + i * s.dt, q, v)
             status = post(q, v, aba(pinm, data, q, v, tau), scal, floating, q_next, v_next)

@@ -25,7 +25,7 @@ def _forces(sim, q, v):
     duty = np.zeros(sim.model.n_joints)
     off = np.zeros(sim.model.n_joints, dtype=np.bool_)
     status = K.generalized_forces(q, v, duty, off, sim.act, sim.scal, sim.ground, sim.model.chain.floating,
-                                  sim._chain_i, sim._chain_f, sim._feat_i, sim._feat_f, tau,
+                                  sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i, sim._feat_f, tau,
                                   np.empty(sim.model.n_joints), X, F)
     return status, tau, X, F
 
