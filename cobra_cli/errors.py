@@ -2,10 +2,13 @@
 from __future__ import annotations
 
 from cobra_model.errors import InputError
+from integrators.simulator import SimulationDiverged
 
-#: Exception types the CLI reports as one line, without a traceback.
+#: Exception types the CLI reports as one line, without a traceback. A diverged simulation is
+#: reported the same way: its message names the time, the place and the setting to change.
 USER_ERRORS: tuple[type[BaseException], ...] = (
     InputError,
+    SimulationDiverged,
     FileNotFoundError,
     FileExistsError,
     IsADirectoryError,
