@@ -20,6 +20,7 @@ COMMANDS: tuple[str, ...] = (
     "simulate",
     "compare",
     "import-optitrack",
+    "replay",
 )
 
 
