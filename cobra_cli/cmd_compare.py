@@ -20,12 +20,13 @@ from cobra_model.runs import Run, read_run
 from integrators.runs import simulate_like
 from sysid.metrics import DEFAULT_WINDOW_S, GapReport, compare_runs
 
-#: PNG files written by ``--plots DIR``: figure key -> file name.
+#: Files written by ``--plots DIR``: figure key -> file name (PNGs and the 3-D replay).
 PLOT_FILES: dict[str, str] = {
     "head_path": "head_path.png",
     "head_error": "head_error.png",
     "joints": "joints_5_6.png",
     "window_correlation": "window_correlation.png",
+    "replay": "replay.html",
 }
 
 
@@ -77,12 +78,15 @@ def write_plots(measured: Run, simulated: Run, report: GapReport,
     # Imported here so that matplotlib does not slow down every other `cobra` command.
     from sysid import plots
 
+    from viz.replay import write_replay_html
+
     pair = [("measured", measured), ("simulated", simulated)]
     return [
         plots.plot_head_paths(pair, paths["head_path"]),
         plots.plot_head_errors([("simulated", report)], paths["head_error"]),
         plots.plot_joint_responses(pair, paths["joints"]),
         plots.plot_window_correlation([("simulated", report)], paths["window_correlation"]),
+        write_replay_html(measured, [("simulated", simulated)], paths["replay"]),
     ]
 
 

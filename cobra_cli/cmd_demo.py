@@ -16,6 +16,7 @@ from cobra_model.runs import Run, read_run
 from integrators.runs import simulate_like
 from sysid.dataset import DATA_DIR, load_manifest
 from sysid.metrics import compare_runs
+from viz.replay import write_replay_html
 from sysid.plots import plot_error_bars, plot_head_paths, plot_joint_responses, plot_window_correlation
 
 
@@ -35,7 +36,7 @@ def run(args: argparse.Namespace) -> int:
         raise FileNotFoundError(f"{manifest} does not exist (regenerate with `python -m sysid.dataset`)")
     train, validation = load_manifest(manifest)
     figures = {name: args.out / name for name in ("head_paths.png", "head_error_per_gait.png", "joints_5_6.png",
-                                                  "window_correlation.png")}
+                                                  "window_correlation.png", "replay.html")}
     args.out.mkdir(parents=True, exist_ok=True)
     for path in figures.values():
         check_writable(path, args.force)
@@ -70,5 +71,6 @@ def run(args: argparse.Namespace) -> int:
                          title=f"joints 5 and 6 at {f} Hz")
     plot_window_correlation([("nominal model", report)], figures["window_correlation.png"],
                             title=f"sliding-window correlation at {f} Hz")
+    write_replay_html(measured, [("nominal model", simulated)], figures["replay.html"])
     print(f"plots: {', '.join(str(p) for p in figures.values())}")
     return 0

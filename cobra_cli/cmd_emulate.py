@@ -14,9 +14,13 @@ torque on; kinds crc, drop, silent, overload, overheating, voltage, unplug.
 from __future__ import annotations
 
 import argparse
+import signal
+import sys
+import threading
 import time
 
 from hardware.config import load_bus_config
+from hardware.control_table import XH540_W270_MODEL_NUMBER
 from hardware.emulator import BusEmulator, EmulatorStats
 from hardware.faults import parse_fault
 from hardware.plant import KinematicPlant, Plant, SimulatorPlant
@@ -46,15 +50,21 @@ def _describe(stats: EmulatorStats) -> str:
             f"{stats.dropped} replies dropped, {stats.corrupted} corrupted")
 
 
+def _stop_on_sigterm(signum: int, frame: object) -> None:
+    raise KeyboardInterrupt
+
+
 def run(args: argparse.Namespace) -> int:
-    """Serve the emulated bus until Ctrl-C, ``--duration`` or an unplug fault."""
+    """Serve the emulated bus until Ctrl-C (or SIGTERM), ``--duration`` or an unplug fault."""
     faults = [parse_fault(spec) for spec in args.fault]
     config = load_bus_config(args.config) if args.config else None
     plant: Plant = SimulatorPlant.nominal() if args.plant == "simulator" else KinematicPlant()
     emulator = BusEmulator(
-        plant, faults=faults,
-        joints=config.joints if config else None,
-        **({"model_number": config.servo.model_number} if config else {}))
+        plant, faults=faults, joints=config.joints if config else None,
+        model_number=config.servo.model_number if config else XH540_W270_MODEL_NUMBER)
+    in_main_thread = threading.current_thread() is threading.main_thread()
+    if in_main_thread:  # `kill` ends a session as Ctrl-C does: the link is removed
+        previous_sigterm = signal.signal(signal.SIGTERM, _stop_on_sigterm)
     port = emulator.start()
     try:
         print(f"pty: {port}", flush=True)
@@ -62,20 +72,25 @@ def run(args: argparse.Namespace) -> int:
             print(f"link: {emulator.link(args.port_link)} -> {port}", flush=True)
         deadline = time.monotonic() + args.duration if args.duration else None
         next_report = time.monotonic() + args.report_every if args.report_every > 0 else None
-        while not emulator.wait_closed(0.2):
-            now = time.monotonic()
-            if deadline is not None and now >= deadline:
-                break
-            if next_report is not None and now >= next_report:
-                print(_describe(emulator.stats()), flush=True)
-                next_report = now + args.report_every
+        try:
+            while not emulator.wait_closed(0.2):
+                now = time.monotonic()
+                if deadline is not None and now >= deadline:
+                    break
+                if next_report is not None and now >= next_report:
+                    print(_describe(emulator.stats()), flush=True)
+                    next_report = now + args.report_every
+        except KeyboardInterrupt:
+            pass  # Ctrl-C (or SIGTERM) is how an emulator session normally ends
     finally:
         emulator.stop()
+        if in_main_thread:
+            signal.signal(signal.SIGTERM, previous_sigterm)
         stats = emulator.stats()
         print(_describe(stats), flush=True)
         for note in stats.notes:
             print(f"note: {note}", flush=True)
     if stats.error:
-        print(f"cobra emulate: the emulated robot failed: {stats.error}")
+        print(f"cobra emulate: the emulated robot failed: {stats.error}", file=sys.stderr)
         return 1
     return 0

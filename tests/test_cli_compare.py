@@ -37,6 +37,13 @@ def run_csv(gait_run: Run, tmp_path_factory: pytest.TempPathFactory) -> Path:
     return write_run(gait_run, tmp_path_factory.mktemp("runs") / "measured.csv")
 
 
+def assert_replay(path: Path) -> None:
+    """The 3-D replay page: one self-contained HTML file holding the meshcat scene."""
+    text = path.read_text()
+    assert text.lstrip().lower().startswith("<!doctype html") or "<html" in text[:200].lower(), path
+    assert len(text) > 10_000 and "meshcat" in text.lower()
+
+
 def assert_png(path: Path) -> None:
     assert path.is_file(), path
     data = path.read_bytes()
@@ -106,7 +113,10 @@ def test_plots_are_written_and_not_overwritten_without_force(
     written = sorted(plots.iterdir())
     assert [p.name for p in written] == sorted(PLOT_FILES.values())
     for path in written:
-        assert_png(path)
+        if path.suffix == ".png":
+            assert_png(path)
+        else:
+            assert_replay(path)
     before = {p: p.stat().st_mtime_ns for p in written}
 
     assert main(["compare", str(run_csv), str(run_csv), "--plots", str(plots)]) == 2
@@ -117,9 +127,12 @@ def test_plots_are_written_and_not_overwritten_without_force(
                  "--json"]) == 0
     captured = capsys.readouterr()
     json.loads(captured.out)  # the figure list goes to stderr, stdout stays JSON
-    assert "wrote 4 figures" in captured.err
+    assert "wrote 5 figures" in captured.err
     for path in written:
-        assert_png(path)
+        if path.suffix == ".png":
+            assert_png(path)
+        else:
+            assert_replay(path)
 
 
 def test_missing_file_is_a_one_line_error(tmp_path: Path, run_csv: Path,
