@@ -22,10 +22,10 @@ from integrators.simulator import SimSettings, SimState, Simulator
 
 
 @njit(cache=True, parallel=True)
-def _batch_forces(control, Q, V, goals, integ, prev_err, duty, on, act, scal, ground, floating,
+def _batch_forces(control, Q, V, goals, goal_index, integ, prev_err, duty, on, act, scal, ground, floating,
                   chain_i, chain_R, chain_f, feat_i, feat_f, TAU, current, X, F, status):
     for e in prange(Q.shape[0]):
-        status[e] = K.pre_step(control, Q[e], V[e], goals[e], integ[e], prev_err[e], duty[e], on, act[e],
+        status[e] = K.pre_step(control, Q[e], V[e], goals[goal_index[e]], integ[e], prev_err[e], duty[e], on, act[e],
                                scal, ground[e], floating, chain_i, chain_R, chain_f, feat_i, feat_f, TAU[e],
                                current[e], X[e], F[e])
 
@@ -66,10 +66,24 @@ class BatchSimulator:
         self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
         self._first = first
 
-    def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float) -> tuple[np.ndarray, np.ndarray]:
-        """Step every environment for ``duration`` [s]; ``goals`` (n_ticks, N, n_joints) [rad].
+    def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float, *,
+                record_every: int = 0, goal_index: np.ndarray | None = None
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Step every environment for ``duration`` [s] with servo goals per control tick.
 
-        Returns the final (N, nq) configurations and (N, nv) velocities.
+        Args:
+            states: N initial states (their servo loops tick at step 0).
+            goals: (n_ticks, G, n_joints) [rad] goal sequences (the last tick is held); environment
+                ``e`` follows sequence ``goal_index[e]`` (default: G = N, one sequence each).
+            goal_index: (N,) int, which goal sequence each environment follows.
+            duration: simulated time [s].
+            record_every: record configurations and encoder readings every this many physics
+                steps (0: record only the final state).
+
+        Returns:
+            (Q, V, Q_rec, M_rec): final (N, nq) configurations and (N, nv) velocities, and the
+            recorded (n_rec, N, nq) configurations and (n_rec, N, n_joints) encoder readings
+            [rad], the first record being the initial state.
 
         Raises:
             InputError: shape mismatch. RuntimeError: an environment diverged (names which).
@@ -77,8 +91,11 @@ class BatchSimulator:
         n = len(self.sims)
         s, f = self.settings, self._first
         n_steps = int(round(duration / s.dt))
-        if goals.ndim != 3 or goals.shape[1:] != (n, self.model.n_joints):
-            raise InputError(f"goals must be (n_ticks, {n}, {self.model.n_joints}), got {goals.shape}")
+        gidx = np.arange(n, dtype=np.int64) if goal_index is None else np.asarray(goal_index, dtype=np.int64)
+        if goals.ndim != 3 or goals.shape[2] != self.model.n_joints or gidx.shape != (n,) \
+                or gidx.min() < 0 or gidx.max() >= goals.shape[1]:
+            raise InputError(f"goals must be (n_ticks, G, {self.model.n_joints}) with a goal_index of {n} "
+                             f"entries in 0..G-1; got goals {goals.shape}")
         Q = np.ascontiguousarray(np.stack([st.q for st in states]))
         V = np.ascontiguousarray(np.stack([st.v for st in states]))
         Qn, Vn = np.empty_like(Q), np.empty_like(V)
@@ -93,9 +110,20 @@ class BatchSimulator:
         F = np.empty_like(X)
         on = np.ones(self.model.n_joints, dtype=np.bool_)
         sub = s.substeps
-        for i in range(n_steps):
+        every = record_every if record_every > 0 else max(n_steps, 1)
+        n_rec = n_steps // every + 1
+        nj, nq = self.model.n_joints, self.model.nq
+        Q_rec = np.empty((n_rec, n, nq))
+        M_rec = np.empty((n_rec, n, nj))
+        offset = self.act[:, :, K.A_ENC_OFFSET]
+        for i in range(n_steps + 1):
+            if i % every == 0:
+                Q_rec[i // every] = Q
+                M_rec[i // every] = Q[:, nq - nj:] + offset
+            if i == n_steps:
+                break
             g = goals[min(i // sub, len(goals) - 1)]
-            _batch_forces(i % sub == 0, Q, V, g, integ, prev, duty, on, self.act, f.scal, self.ground,
+            _batch_forces(i % sub == 0, Q, V, g, gidx, integ, prev, duty, on, self.act, f.scal, self.ground,
                           self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
                           TAU, cur, X, F, status)
             pin.abaInParallel(self.threads, self.pool, Q.T, V.T, TAU.T, A)
@@ -106,4 +134,4 @@ class BatchSimulator:
                                    f"{status[bad].tolist()})")
             Q, Qn = Qn, Q
             V, Vn = Vn, V
-        return Q, V
+        return Q, V, Q_rec, M_rec

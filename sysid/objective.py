@@ -1,0 +1,250 @@
+"""The identification objective shared by least squares and PPO (paper Eqs. 7 and 8).
+
+For a parameter vector the objective simulates every training run from its own first pose with
+its own commands, and compares with the measurement:
+
+- **residuals** (least squares): the head's ground-plane position over time [m] divided by
+  ``Weights.head_scale_m`` and every joint angle over time [rad] divided by
+  ``Weights.joint_scale_rad``, sampled at ``Weights.sample_hz`` (motion-capture gaps are left
+  out by zero residuals);
+- **scalar** (PPO's negative reward): external = mean over runs of the final head-position
+  error [m] (Eq. 7; plus ``mean_head`` x the mean error), internal = mean joint RMSE [rad] plus
+  the squared CPG amplitude and phase errors of the joints (Eq. 8), each with a weight.
+
+CPG terms are fitted at the commanded gait frequency (linear least squares on sin, cos and an
+offset), so the frequency term of Eq. 8 is zero by construction: a servo-driven joint follows
+its command's frequency; ``cobra compare`` reports the free-frequency fit.
+
+Evaluation is batched: all (parameter vector, run) pairs that share the transmission inertia
+step together in one :class:`integrators.batch.BatchSimulator`, and groups of parameter vectors
+are spread over an :class:`sysid.executor.Executor`.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Sequence
+
+import numpy as np
+
+from cobra_model.errors import InputError
+from cobra_model.model import CobraModel
+from cobra_model.parameters import ModelParameters
+from cobra_model.runs import Run, interpolate_rows
+from integrators.batch import BatchSimulator
+from integrators.runs import InitialPose
+from integrators.simulator import SimSettings, Simulator
+from sysid.executor import Executor, LocalExecutor
+
+
+@dataclass(frozen=True)
+class Weights:
+    """Weights of the objective (documented defaults).
+
+    Attributes:
+        head_scale_m: head residual unit [m]: 1 cm of head error weighs as much as ...
+        joint_scale_rad: ... 0.01 rad of joint error.
+        sample_hz: residual sampling rate [Hz].
+        final_head: weight of the final head error [1/m] (Eq. 7).
+        mean_head: weight of the mean head error [1/m] (0: the paper's final-only reward).
+        joint_rmse: weight of the mean joint RMSE [1/rad].
+        cpg: weight of the mean squared CPG amplitude + phase error [1/rad^2] (Eq. 8).
+    """
+
+    head_scale_m: float = 0.01
+    joint_scale_rad: float = 0.01
+    sample_hz: float = 10.0
+    final_head: float = 1.0
+    mean_head: float = 0.0
+    joint_rmse: float = 1.0
+    cpg: float = 1.0
+
+
+@dataclass(frozen=True)
+class RunTarget:
+    """What one measured run contributes: its start, commands and measured samples."""
+
+    name: str
+    t0: float
+    duration: float
+    pose: InitialPose
+    ticks: np.ndarray        # (n_ticks, 11) commands at the control ticks from t0
+    t_samples: np.ndarray    # (S,) sample times from t0 [s]
+    head_xy: np.ndarray      # (S, 2) measured head, NaN in gaps
+    q: np.ndarray            # (S, 11) measured joints [rad]
+    freq_hz: float
+
+    @classmethod
+    def of_run(cls, run: Run, settings: SimSettings, sample_hz: float) -> "RunTarget":
+        t0, t1 = float(run.t[0]), float(run.t[-1])
+        dt = settings.control_dt
+        ticks_t = t0 + np.arange(int(np.floor((t1 - t0) / dt + 1e-9)) + 1) * dt
+        ticks = np.column_stack([np.interp(ticks_t, run.t, run.q_ref[:, j]) for j in range(run.q_ref.shape[1])])
+        ts = np.arange(0.0, t1 - t0 + 1e-9, 1.0 / sample_hz)
+        head = interpolate_rows(t0 + ts, run.t, run.head_pos[:, :2], max_gap_samples=2)
+        q = interpolate_rows(t0 + ts, run.t, run.q)
+        gait = run.meta.get("gait") if isinstance(run.meta, dict) else None
+        freq = float(gait["frequency_hz"]) if isinstance(gait, dict) and "frequency_hz" in gait else _dominant_freq(run)
+        return cls(str(run.source or "run"), t0, t1 - t0, InitialPose.of_run(run), ticks, ts, head, q, freq)
+
+
+def _dominant_freq(run: Run) -> float:
+    """Commanded frequency [Hz] from the spectrum of the commands (when the sidecar has no gait)."""
+    y = run.q_ref - run.q_ref.mean(axis=0)
+    dt = float(np.median(np.diff(run.t)))
+    spec = np.abs(np.fft.rfft(y, axis=0)).sum(axis=1)
+    freqs = np.fft.rfftfreq(len(y), dt)
+    return float(freqs[1 + np.argmax(spec[1:])])
+
+
+def cpg_fit(t: np.ndarray, y: np.ndarray, freq_hz: float) -> tuple[np.ndarray, np.ndarray]:
+    """Amplitude [rad] and phase [rad] of ``y`` (S, J) ~ A sin(2 pi f t + phi) + c at known f."""
+    w = 2 * np.pi * freq_hz * t
+    basis = np.column_stack([np.sin(w), np.cos(w), np.ones_like(t)])
+    coef, *_ = np.linalg.lstsq(basis, y, rcond=None)
+    return np.hypot(coef[0], coef[1]), np.arctan2(coef[1], coef[0])
+
+
+@dataclass(frozen=True)
+class Simulated:
+    """Simulated samples of every run for one parameter vector."""
+
+    head_xy: list[np.ndarray]   # per run (S, 2)
+    q: list[np.ndarray]         # per run (S, 11)
+
+
+@dataclass(frozen=True)
+class ObjectiveSpec:
+    """Everything needed to evaluate the objective (picklable, for executors)."""
+
+    targets: tuple[RunTarget, ...]
+    params: ModelParameters
+    weights: Weights
+    settings: SimSettings
+    threads: int = 2
+
+
+def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
+    """Simulate every run for each row of ``X`` (k, d) of free-parameter values (physical units)."""
+    model = CobraModel.load()
+    sets = [spec.params.update_from_vector(x) for x in np.atleast_2d(X)]
+    out: list[Simulated | None] = [None] * len(sets)
+    groups: dict[tuple, list[int]] = {}
+    for i, p in enumerate(sets):
+        groups.setdefault(tuple(p.per_joint("armature")), []).append(i)
+    targets = spec.targets
+    n_runs = len(targets)
+    n_ticks = max(len(tg.ticks) for tg in targets)
+    goals = np.empty((n_ticks, n_runs, targets[0].ticks.shape[1]))
+    for r, tg in enumerate(targets):
+        goals[:, r] = tg.ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
+    duration = max(tg.duration for tg in targets)
+    every = max(1, int(round(1.0 / (spec.weights.sample_hz * spec.settings.dt))))
+    for members in groups.values():
+        env_params = [sets[i] for i in members for _ in targets]
+        batch = BatchSimulator(model, env_params, spec.settings, threads=spec.threads)
+        states = []
+        for e, sim in enumerate(batch.sims):
+            pose = targets[e % n_runs].pose
+            states.append(sim.rest_state(pose.q_joints, head_xy=pose.head_xy, base_quat_wxyz=pose.head_quat_wxyz))
+        _, _, q_rec, m_rec = batch.rollout(states, goals, duration, record_every=every,
+                                           goal_index=np.tile(np.arange(n_runs), len(members)))
+        t_rec = np.arange(q_rec.shape[0]) * every * spec.settings.dt
+        for k, i in enumerate(members):
+            heads, joints = [], []
+            for r, tg in enumerate(targets):
+                e = k * n_runs + r
+                heads.append(interpolate_rows(tg.t_samples, t_rec, q_rec[:, e, :2]))
+                joints.append(interpolate_rows(tg.t_samples, t_rec, m_rec[:, e]))
+            out[i] = Simulated(heads, joints)
+    return out  # type: ignore[return-value]
+
+
+def residual_vector(spec: ObjectiveSpec, sim: Simulated) -> np.ndarray:
+    """Stacked weighted residuals (head xy over time, joints over time) of one parameter vector."""
+    w = spec.weights
+    parts = []
+    for tg, head, q in zip(spec.targets, sim.head_xy, sim.q):
+        dh = (head - tg.head_xy) / w.head_scale_m
+        parts.append(np.where(np.isfinite(dh), dh, 0.0).ravel())
+        parts.append(((q - tg.q) / w.joint_scale_rad).ravel())
+    return np.concatenate(parts)
+
+
+def scalar_terms(spec: ObjectiveSpec, sim: Simulated) -> dict[str, float]:
+    """The paper's reward terms for one parameter vector (means over runs)."""
+    finals, means, rmses, cpgs = [], [], [], []
+    for tg, head, q in zip(spec.targets, sim.head_xy, sim.q):
+        err = np.linalg.norm(head - tg.head_xy, axis=1)
+        ok = np.flatnonzero(np.isfinite(err))
+        finals.append(float(err[ok[-1]]) if ok.size else 0.0)
+        means.append(float(np.mean(err[ok])) if ok.size else 0.0)
+        rmses.append(float(np.sqrt(np.mean((q - tg.q) ** 2))))
+        a_m, p_m = cpg_fit(tg.t_samples, tg.q, tg.freq_hz)
+        a_s, p_s = cpg_fit(tg.t_samples, q, tg.freq_hz)
+        dphi = np.angle(np.exp(1j * (p_s - p_m)))
+        cpgs.append(float(np.mean((a_s - a_m) ** 2 + dphi ** 2)))
+    w = spec.weights
+    terms = {"head_final_m": float(np.mean(finals)), "head_mean_m": float(np.mean(means)),
+             "joint_rmse_rad": float(np.mean(rmses)), "cpg_sq": float(np.mean(cpgs))}
+    terms["external"] = w.final_head * terms["head_final_m"] + w.mean_head * terms["head_mean_m"]
+    terms["internal"] = w.joint_rmse * terms["joint_rmse_rad"] + w.cpg * terms["cpg_sq"]
+    terms["total"] = terms["external"] + terms["internal"]
+    return terms
+
+
+def _evaluate_chunk(job: tuple[ObjectiveSpec, np.ndarray, bool]) -> list[np.ndarray | dict[str, float]]:
+    spec, X, want_residuals = job
+    sims = simulate_batch(spec, X)
+    return [residual_vector(spec, s) if want_residuals else scalar_terms(spec, s) for s in sims]
+
+
+@dataclass
+class Objective:
+    """The objective over a set of runs for the free parameters of ``params``.
+
+    Args:
+        runs: measured training runs.
+        params: parameter set; its free parameters are the optimisation variables.
+        weights: objective weights.
+        settings: simulator settings.
+        executor: where parameter-vector chunks are evaluated (default: in-process).
+    """
+
+    runs: Sequence[Run]
+    params: ModelParameters
+    weights: Weights = field(default_factory=Weights)
+    settings: SimSettings = field(default_factory=SimSettings)
+    executor: Executor = field(default_factory=lambda: LocalExecutor(1))
+    evaluations: int = 0
+
+    def __post_init__(self) -> None:
+        if not self.runs:
+            raise InputError("the objective needs at least one run")
+        if not self.params.free_names:
+            raise InputError("every parameter is frozen: nothing to fit")
+        self.spec = ObjectiveSpec(tuple(RunTarget.of_run(r, self.settings, self.weights.sample_hz) for r in self.runs),
+                                  self.params, self.weights, self.settings,
+                                  threads=2 if self.executor.workers == 1 else 1)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return self.params.free_names
+
+    def _map(self, X: np.ndarray, want_residuals: bool) -> list:
+        X = np.atleast_2d(np.asarray(X, dtype=float))
+        self.evaluations += len(X)
+        chunks = np.array_split(np.arange(len(X)), min(len(X), self.executor.workers))
+        results = self.executor.map(_evaluate_chunk, [(self.spec, X[c], want_residuals) for c in chunks if len(c)])
+        return [item for chunk in results for item in chunk]
+
+    def residuals(self, X: np.ndarray) -> np.ndarray:
+        """(k, m) residual vectors for (k, d) free-parameter values in physical units."""
+        return np.array(self._map(X, True))
+
+    def terms(self, X: np.ndarray) -> list[dict[str, float]]:
+        """The paper's reward terms (dicts) for each row of X."""
+        return self._map(X, False)
+
+    def __call__(self, x: np.ndarray) -> float:
+        """Scalar objective (external + internal) of one parameter vector."""
+        return self.terms(np.atleast_2d(x))[0]["total"]
