@@ -21,6 +21,9 @@ COMMANDS: tuple[str, ...] = (
     "compare",
     "import-optitrack",
     "replay",
+    "fit",
+    "record",
+    "emulate",
 )
 
 

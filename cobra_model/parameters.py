@@ -156,6 +156,10 @@ class ModelParameters:
     def __setattr__(self, name: str, value: Any) -> None:
         raise AttributeError("ModelParameters is immutable; use with_values()")
 
+    def __reduce__(self) -> tuple:
+        """Pickle as the constructor call (for process and Ray executors)."""
+        return (ModelParameters, (self._params,))
+
     def __iter__(self) -> Iterator[Parameter]:
         return iter(self._params)
 

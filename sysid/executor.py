@@ -8,6 +8,7 @@ outgrow one machine (``pip install 'cobra-sysid[ray]'``; ``address=None`` starts
 """
 from __future__ import annotations
 
+import multiprocessing
 import os
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, Callable, Protocol, Sequence
@@ -38,7 +39,8 @@ class LocalExecutor:
         if self.workers == 1 or len(items) <= 1:
             return [fn(item) for item in items]
         if self._pool is None:
-            self._pool = ProcessPoolExecutor(max_workers=self.workers)
+            # spawn, not fork: the parent runs numba and OpenMP thread pools that a fork would copy
+            self._pool = ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"))
         return list(self._pool.map(fn, items))
 
     def close(self) -> None:

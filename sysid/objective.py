@@ -137,8 +137,9 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
     goals = np.empty((n_ticks, n_runs, targets[0].ticks.shape[1]))
     for r, tg in enumerate(targets):
         goals[:, r] = tg.ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
-    duration = max(tg.duration for tg in targets)
     every = max(1, int(round(1.0 / (spec.weights.sample_hz * spec.settings.dt))))
+    # one extra record period so that every sample time lies inside the recorded span
+    duration = max(tg.duration for tg in targets) + every * spec.settings.dt
     for members in groups.values():
         env_params = [sets[i] for i in members for _ in targets]
         batch = BatchSimulator(model, env_params, spec.settings, threads=spec.threads)

@@ -1,0 +1,128 @@
+"""``cobra fit``: identify the parameter vector by least squares (CasADi) or PPO."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from cobra_cli.common import check_writable, load_params
+from cobra_model.errors import InputError
+from sysid.executor import make_executor
+from sysid.objective import Objective, Weights
+from sysid.runsets import expand, read_runs
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "fit", help="identify the parameters from measured runs (least squares or PPO)",
+        description="Tune the parameter vector so that simulated runs match measured ones. A dataset "
+                    "manifest.json among RUNS contributes its train/validation split.")
+    p.add_argument("runs", nargs="+", metavar="RUNS", help="run CSVs or a dataset manifest.json")
+    p.add_argument("--method", choices=("lsq", "ppo"), default="lsq", help="least squares (default) or PPO")
+    p.add_argument("--holdout", nargs="*", default=[], metavar="RUN", help="held-out runs (added to a manifest's)")
+    p.add_argument("--params", help="starting parameter file (default: nominal)")
+    p.add_argument("--free", help="comma-separated names to tune (default: every parameter not frozen)")
+    p.add_argument("--frozen", help="comma-separated names to hold fixed")
+    p.add_argument("--budget-seconds", type=float, default=None, help="wall-time budget [s]")
+    p.add_argument("--max-iterations", type=int, default=20, help="least squares: Jacobian evaluations at most")
+    p.add_argument("--timesteps", type=int, default=2000, help="PPO: environment steps at most")
+    p.add_argument("--seed", type=int, default=0, help="random seed (PPO)")
+    p.add_argument("--executor", choices=("local", "ray"), default="local", help="where evaluations run")
+    p.add_argument("--ray-address", default=None, help="join this Ray cluster (with --executor ray)")
+    p.add_argument("--workers", type=int, default=1, help="local processes for evaluations (default 1: "
+                   "in-process, the batch already uses both cores)")
+    p.add_argument("--out", required=True, help="fitted parameter file (JSON)")
+    p.add_argument("--report", metavar="DIR", help="write report.html with figures into DIR")
+    p.add_argument("--force", action="store_true", help="overwrite --out and report files")
+    p.set_defaults(func=run)
+
+
+def _names(text: str | None, option: str) -> list[str]:
+    if not text:
+        return []
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise InputError(f"{option}: expected comma-separated parameter names")
+    return names
+
+
+def run(args: argparse.Namespace) -> int:
+    out = check_writable(args.out, args.force)
+    report_dir = Path(args.report) if args.report else None
+    if report_dir is not None:
+        if report_dir.exists() and not report_dir.is_dir():
+            raise InputError(f"--report {report_dir}: exists and is not a directory")
+        if report_dir.exists():
+            check_writable(report_dir / "report.html", args.force)
+    start = load_params(args.params)
+    free, frozen = _names(args.free, "--free"), _names(args.frozen, "--frozen")
+    try:
+        params = start.with_frozen(frozen=frozen, free=free or None)
+    except InputError as exc:
+        raise InputError(f"--free/--frozen: {exc}") from None
+    train_paths, val_paths = expand(args.runs)
+    val_paths += [Path(p) for p in args.holdout]
+    if not train_paths:
+        raise InputError("no training runs given")
+    train = read_runs(train_paths)
+    validation = read_runs(val_paths)
+    executor = make_executor(args.executor, workers=args.workers, ray_address=args.ray_address)
+    objective = Objective(train, params, Weights(), executor=executor)
+    print(f"fitting {', '.join(params.free_names)} on {len(train)} runs ({len(validation)} held out) "
+          f"by {args.method}")
+    from tqdm import tqdm
+    bar = tqdm(desc=args.method, unit="it", leave=False, disable=None)
+
+    def progress(step: int, cost: float, seconds: float) -> None:
+        bar.update(1)
+        bar.set_postfix(cost=f"{cost:.4g}", s=f"{seconds:.0f}")
+
+    if args.method == "lsq":
+        from sysid.lsq import fit_lsq
+        result = fit_lsq(objective, max_iterations=args.max_iterations, budget_seconds=args.budget_seconds,
+                         progress=progress)
+    else:
+        from sysid.ppo import fit_ppo
+        curve = report_dir / "reward_curve.png" if report_dir else None
+        if curve is not None:
+            report_dir.mkdir(parents=True, exist_ok=True)
+        result = fit_ppo(objective, budget_seconds=args.budget_seconds, total_timesteps=args.timesteps,
+                         seed=args.seed, progress=progress, curve_png=curve)
+    bar.close()
+    executor.close()
+    fitted = result.params
+    doc = fitted.to_json_dict()
+    doc["fit"] = {"method": result.method, "status": result.status.value, "cost": result.cost,
+                  "initial_cost": result.initial_cost, "evaluations": result.evaluations,
+                  "seconds": result.seconds, "train_runs": [str(p) for p in train_paths],
+                  "intervals": {r.name: [r.ci_low, r.ci_high] for r in result.report},
+                  "identifiable": {r.name: r.reason for r in result.report}}
+    out.write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    print(f"{result.status.value} after {result.evaluations} evaluations in {result.seconds:.1f} s; "
+          f"cost {result.initial_cost:.4g} -> {result.cost:.4g}")
+    print(f"  {'parameter':16s} {'nominal':>10s} {'start':>10s} {'fitted':>10s} {'95% interval':>25s}  note")
+    for r in result.report:
+        ci = f"[{r.ci_low:.4g}, {r.ci_high:.4g}]"
+        print(f"  {r.name:16s} {r.nominal:10.4g} {r.initial:10.4g} {r.value:10.4g} {ci:>25s}  {r.reason}")
+    print(f"wrote {out}")
+    if validation:
+        from sysid.report import HtmlReport, evaluate_held_out, held_out_figures
+        held = evaluate_held_out(validation, start, fitted)
+        print("held-out final head error [m] (before -> after):")
+        for h in held:
+            b, a = h.gap_before.to_json_dict(), h.gap_after.to_json_dict()
+            print(f"  {h.name:22s} {h.freq_hz:5.2f} Hz  {b['head_final_error_m']:.4f} -> {a['head_final_error_m']:.4f}")
+        if report_dir is not None:
+            report_dir.mkdir(parents=True, exist_ok=True)
+            page = HtmlReport(f"cobra fit ({result.method}): {result.status.value}")
+            page.heading("Parameters")
+            page.table(["name", "unit", "nominal", "start", "fitted", "95% low", "95% high", "at bound", "note"],
+                       [[r.name, r.unit, r.nominal, r.initial, r.value, r.ci_low, r.ci_high,
+                         "yes" if r.at_bound else "", r.reason] for r in result.report])
+            page.paragraph(f"{result.evaluations} objective evaluations, {result.seconds:.1f} s, cost "
+                           f"{result.initial_cost:.4g} -> {result.cost:.4g}.")
+            if result.method == "ppo" and (report_dir / "reward_curve.png").exists():
+                page.figure(report_dir / "reward_curve.png", "PPO reward curve")
+            held_out_figures(held, report_dir, ("before", "after"), page)
+            print(f"report: {page.write(report_dir / 'report.html')}")
+    return 0

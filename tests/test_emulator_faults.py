@@ -1,0 +1,258 @@
+"""Driver and recorder against the emulated bus, with faults injected.
+
+The real ``dynamixel_sdk`` client (inside :class:`~hardware.driver.DynamixelBus`) talks over a
+pty to the emulator, which runs in a child process as ``cobra emulate`` would; the servos are
+ideal (:class:`~hardware.plant.KinematicPlant`) so that each test takes about a second. Every fault starts ``at_s`` after the first torque on, i.e. after
+the start of recording (``settle_s=0``). Each test checks what the driver did (retry or stop),
+that torque went off, the message, and that the run on disk is valid and holds every sample the
+driver received (:func:`assert_holds_every_sample`).
+"""
+from __future__ import annotations
+
+import math
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+from typing import Any, Iterator
+
+import numpy as np
+import pytest
+
+from cobra_model.gait import SidewindingGait
+from cobra_model.runs import read_run
+from hardware import control_table as ct
+from hardware.config import BusConfig, JointConfig
+from hardware.driver import ConnectError, DynamixelBus
+from hardware.emulator import EmulatorProcess
+from hardware.faults import Fault, FaultKind, parse_fault
+from hardware.plant import KinematicPlant
+from hardware.recorder import RecordResult, StopReason, record_gait
+
+GAIT = SidewindingGait(freq_hz=0.5, ramp_s=0.5)
+
+
+def start(faults: list[Fault] = (), **kw: Any) -> EmulatorProcess:
+    emu = EmulatorProcess(KinematicPlant, faults=list(faults), **kw)
+    emu.start()
+    return emu
+
+
+@pytest.fixture
+def emulators() -> Iterator[list[EmulatorProcess]]:
+    started: list[EmulatorProcess] = []
+    yield started
+    for emu in started:
+        emu.stop()
+
+
+def record(emu: EmulatorProcess, out: Path, *, duration_s: float = 1.2, gait: Any = GAIT,
+           config: BusConfig | None = None) -> RecordResult:
+    config = (config or BusConfig(port=emu.port)).with_port(emu.port)
+    return record_gait(config, gait, duration_s=duration_s, out=out, settle_s=0.0)
+
+
+def assert_holds_every_sample(run, emu: EmulatorProcess, *, lost_in_flight: int = 0) -> None:
+    """Every present-state read the driver received is a row, and the rows account for what the
+    emulator sent: each intact reply set (less ``torque_on``'s read before recording) is a row
+    unless the driver gave up waiting for it (a failed read, counted) or the stop came while it
+    was in flight (``lost_in_flight``: a pulled cable, or a Ctrl-C that lands between receiving
+    a sample and writing it)."""
+    comm = run.meta["comm"]
+    assert run.n_samples == comm["samples"]
+    received = comm["reads_ok"] - 1
+    assert received - lost_in_flight <= run.n_samples <= received
+    sent = emu.stats().intact_sync_reads.get(ct.PRESENT_STATE_ADDRESS, 0) - 1
+    assert sent - comm["reads_failed"] - lost_in_flight <= run.n_samples <= sent
+
+
+def torque(emu: EmulatorProcess) -> list[int]:
+    return [emu.register(i, ct.TORQUE_ENABLE) for i in range(1, 12)]
+
+
+def assert_tracks(run) -> None:
+    """The ideal servos lag the gait by their 30 ms time constant (~0.1 rad at the 3.3 rad/s
+    peak speed of the yaw joints), more where a read was retried; a mix-up of joints, units or
+    signs would be off by about the 1 rad amplitude."""
+    error = np.abs(run.q - run.q_ref)
+    assert np.percentile(error, 95) < 0.25
+    assert np.sqrt(np.mean(error**2)) < 0.15
+
+
+def test_clean_run_follows_the_gait(tmp_path: Path, emulators) -> None:
+    emulators.append(emu := start())
+    result = record(emu, tmp_path / "clean.csv")
+    assert result.status is StopReason.COMPLETED
+    assert result.message == "torque off on all 11 servos"
+    assert torque(emu) == [0] * 11
+    run = read_run(result.path)
+    assert run.n_samples == result.samples
+    assert_holds_every_sample(run, emu)
+    assert "notes" not in run.meta
+    assert run.meta["source"] == "emulator"
+    assert run.meta["gait"] == GAIT.to_json()
+    np.testing.assert_allclose(run.q_ref, GAIT.q_ref(run.t), atol=1e-12)
+    assert_tracks(run)
+    timing = result.timing
+    # Every 20 ms slot of the 1.2 s either ran or was reported skipped, and the rate is what ran.
+    assert 59 <= timing.cycles + timing.skipped_cycles <= 60
+    assert timing.achieved_rate_hz == pytest.approx(1.0 / timing.period_mean_s)
+    assert 40 < timing.achieved_rate_hz < 50.5
+    assert run.meta["timing"] == timing.to_json()
+    assert run.t[0] >= 0 and np.all(np.diff(run.t) > 0)
+
+
+@pytest.mark.parametrize("spec", ["crc@0.4x4", "drop@0.4x4", "crc:7@0.4x2"])
+def test_corrupted_and_dropped_replies_are_retried(tmp_path: Path, emulators, spec: str) -> None:
+    emulators.append(emu := start([parse_fault(spec)]))
+    result = record(emu, tmp_path / "retry.csv")
+    stats = emu.stats()
+    assert stats.corrupted + stats.dropped == parse_fault(spec).count
+    assert result.status is StopReason.COMPLETED, result.message
+    run = read_run(result.path)
+    assert_holds_every_sample(run, emu)
+    assert run.meta["comm"]["reads_failed"] >= 1  # and then retried (a state read) or repeated
+    assert_tracks(run)
+
+
+def test_servo_that_stops_answering(tmp_path: Path, emulators) -> None:
+    emulators.append(emu := start([Fault(FaultKind.SILENT, at_s=0.5, servo_id=5)]))
+    result = record(emu, tmp_path / "silent.csv", duration_s=3.0)
+    assert result.status is StopReason.COMM_FAILURE
+    assert "5 consecutive failed reads" in result.message
+    assert "not answering a ping: joint 5 (ID 5)" in result.message
+    assert "confirmed by 10 servos, not by joint 5 (ID 5)" in result.message
+    assert torque(emu) == [0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0]  # servo 5 never heard the torque off
+    run = read_run(result.path)
+    assert run.n_samples == result.samples
+    assert_holds_every_sample(run, emu)
+    assert 0.3 <= run.t[-1] <= 1.0  # the servo fell silent 0.5 s after the first torque on
+    assert run.meta["notes"] == [f"partial run: {result.message.split('; torque off')[0]}"]
+    assert run.meta["stop"]["status"] == "comm_failure"
+
+
+def test_overload_error_bit_stops_with_torque_off(tmp_path: Path, emulators) -> None:
+    emulators.append(emu := start([Fault(FaultKind.OVERLOAD, at_s=0.5, servo_id=3)]))
+    result = record(emu, tmp_path / "overload.csv", duration_s=3.0)
+    assert result.status is StopReason.HARDWARE_ERROR
+    assert result.message == ("joint 3 (ID 3) reported a hardware error: overload (Hardware Error "
+                              "Status 0x20); torque off on all 11 servos")
+    assert torque(emu) == [0] * 11
+    run = read_run(result.path)
+    assert_holds_every_sample(run, emu)
+    # Hardware Error Status is read every 5 cycles (100 ms at 50 Hz).
+    assert 0.3 <= run.t[-1] < 1.0
+    assert run.meta["notes"][0].startswith("partial run: joint 3 (ID 3) reported a hardware error: overload")
+
+
+def test_pulled_cable(tmp_path: Path, emulators) -> None:
+    emulators.append(emu := start([Fault(FaultKind.UNPLUG, at_s=0.5)]))
+    result = record(emu, tmp_path / "unplugged.csv", duration_s=3.0)
+    assert result.status is StopReason.DISCONNECTED
+    assert result.message.startswith(f"port lost: serial port {emu.port} failed: ")
+    assert result.message.endswith("torque off could NOT be sent: the servos hold their last goal, cut their power")
+    assert result.torque.port_error is not None
+    run = read_run(result.path)
+    # The reply the emulator sent just before the cable went may not have been read.
+    assert_holds_every_sample(run, emu, lost_in_flight=1)
+    assert 0.3 <= run.t[-1] <= 1.0  # the cable went 0.5 s after the first torque on
+    assert run.meta["notes"][0].startswith("partial run: port lost")
+
+
+class _FailingGait:
+    """The paper's gait until ``at_s``, then ``exc`` is raised (a bug)."""
+
+    def __init__(self, exc: BaseException, at_s: float) -> None:
+        self.exc, self.at_s = exc, at_s
+
+    def q_ref(self, t: float) -> np.ndarray:
+        if t > self.at_s:
+            raise self.exc
+        return GAIT.q_ref(t)
+
+    def to_json(self) -> dict[str, Any]:
+        return GAIT.to_json()
+
+
+def test_ctrl_c_stops_with_torque_off(tmp_path: Path, emulators) -> None:
+    emulators.append(emu := start())
+    # A real SIGINT to this process half a second in, wherever the loop then is (sleeping,
+    # or inside the SDK waiting for a reply).
+    ctrl_c = threading.Timer(0.5, os.kill, (os.getpid(), signal.SIGINT))
+    ctrl_c.start()
+    try:
+        result = record(emu, tmp_path / "ctrl_c.csv", duration_s=3.0)
+    finally:
+        ctrl_c.cancel()
+    assert result.status is StopReason.INTERRUPTED
+    assert result.message == "interrupted (Ctrl-C); torque off on all 11 servos"
+    assert torque(emu) == [0] * 11
+    run = read_run(result.path)
+    # Ctrl-C may land while a reply is being received: that one is lost.
+    assert_holds_every_sample(run, emu, lost_in_flight=1)
+    assert 0.2 <= run.t[-1] <= 1.0  # Ctrl-C came 0.5 s after connecting began
+    assert run.meta["notes"] == ["partial run: interrupted (Ctrl-C)"]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored after cleanup
+
+
+def test_unexpected_exception_is_raised_after_torque_off(tmp_path: Path, emulators) -> None:
+    emulators.append(emu := start())
+    with pytest.raises(RuntimeError, match="boom"):
+        record(emu, tmp_path / "bug.csv", gait=_FailingGait(RuntimeError("boom"), 0.4))
+    assert torque(emu) == [0] * 11
+    run = read_run(tmp_path / "bug.csv")
+    assert_holds_every_sample(run, emu)
+    assert run.meta["notes"] == ["partial run: unexpected error: RuntimeError: boom"]
+
+
+class _ConstantGait:
+    def __init__(self, q: np.ndarray) -> None:
+        self.q = np.asarray(q, dtype=float)
+
+    def q_ref(self, t: float) -> np.ndarray:
+        return self.q
+
+    def to_json(self) -> dict[str, Any]:
+        return {"type": "constant", "q_rad": self.q.tolist()}
+
+
+def test_commands_are_clamped_and_offsets_applied(tmp_path: Path, emulators) -> None:
+    joints = tuple(JointConfig(k, k, zero_offset_rad=math.radians(5.0 * (k - 6)), direction=(-1) ** k)
+                   for k in range(1, 12))
+    config = BusConfig(port="", joints=joints, joint_limit_rad=math.radians(60.0))
+    emulators.append(emu := start(joints=joints))
+    q_cmd = np.linspace(-1.5, 1.5, 11)  # beyond +-60 deg at both ends
+    result = record(emu, tmp_path / "clamp.csv", duration_s=0.6, gait=_ConstantGait(q_cmd), config=config)
+    assert result.status is StopReason.COMPLETED
+    run = read_run(result.path)
+    expected = np.clip(q_cmd, -math.radians(60), math.radians(60))
+    np.testing.assert_allclose(run.q_ref, np.broadcast_to(expected, run.q_ref.shape))
+    np.testing.assert_allclose(run.q[-1], expected, atol=2 * math.pi / 4096)
+    # Joint 11: +60 deg, direction -1, offset +25 deg -> servo angle -35 deg.
+    pulses_per_deg = 4096 / 360
+    assert emu.register(11, ct.GOAL_POSITION) == 2048 + round(-35.0 * pulses_per_deg)
+    # The servos were given the joint limits too: joint 11 spans -35..85 deg of servo angle.
+    assert emu.register(11, ct.MIN_POSITION_LIMIT) == 2048 + round(-35.0 * pulses_per_deg)
+    assert emu.register(11, ct.MAX_POSITION_LIMIT) == 2048 + round(85.0 * pulses_per_deg)
+
+
+def test_connect_names_every_missing_wrong_or_faulty_servo(emulators) -> None:
+    emulators.append(emu := start(joints=[JointConfig(k, k) for k in range(1, 11)], model_number=1120))
+    with pytest.raises(ConnectError) as info:
+        DynamixelBus(BusConfig(port=emu.port), connect_retries=1).connect()
+    text = str(info.value)
+    assert "joint 1 (ID 1): model number 1120, expected 1100" in text
+    assert "joint 11 (ID 11): no answer to ping" in text
+
+    emulators.append(emu := start())
+    bus = DynamixelBus(BusConfig(port=emu.port))
+    bus.connect()
+    bus.torque_on()
+    emu.inject(Fault(FaultKind.OVERLOAD, servo_id=4))
+    time.sleep(0.05)
+    assert emu.register(4, ct.HARDWARE_ERROR_STATUS) == ct.HardwareError.OVERLOAD
+    bus.torque_off()
+    bus.close()
+    with pytest.raises(ConnectError, match=r"joint 4 \(ID 4\): hardware error \(overload\); reboot"):
+        DynamixelBus(BusConfig(port=emu.port)).connect()

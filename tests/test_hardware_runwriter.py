@@ -1,0 +1,90 @@
+"""The incremental run writer: same file as ``write_run``, valid at every moment, even after a kill."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cobra_model.errors import InputError
+from cobra_model.runs import Run, read_run, write_run
+from hardware.runwriter import UNFINISHED_NOTE, IncrementalRunWriter
+
+REPO = Path(__file__).resolve().parent.parent
+
+
+def _samples(n: int) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(1)
+    return {
+        "t": np.cumsum(rng.uniform(0.019, 0.021, n)),
+        "q_ref": rng.normal(size=(n, 11)),
+        "q": rng.normal(size=(n, 11)),
+        "dq": rng.normal(size=(n, 11)),
+        "current": rng.normal(size=(n, 11)),
+    }
+
+
+def test_file_is_byte_identical_to_write_run(tmp_path: Path) -> None:
+    s = _samples(20)
+    writer = IncrementalRunWriter(tmp_path / "inc.csv", {"source": "hardware"})
+    for k in range(20):
+        writer.append(s["t"][k], s["q_ref"][k], s["q"][k], s["dq"][k], s["current"][k])
+    writer.close()
+    n = len(s["t"])
+    reference = Run(t=s["t"], q_ref=s["q_ref"], q=s["q"], dq=s["dq"], current=s["current"],
+                    head_pos=np.full((n, 3), np.nan), head_quat=np.full((n, 4), np.nan))
+    write_run(reference, tmp_path / "ref.csv")
+    assert (tmp_path / "inc.csv").read_bytes() == (tmp_path / "ref.csv").read_bytes()
+    run = read_run(tmp_path / "inc.csv")
+    assert run.meta == {"format": "cobra-run/1", "source": "hardware"}
+    np.testing.assert_array_equal(run.q, s["q"])
+    assert np.isnan(run.head_pos).all() and np.isnan(run.head_quat).all()
+
+
+def test_run_is_valid_while_being_written_and_notes_a_stop(tmp_path: Path) -> None:
+    s = _samples(5)
+    writer = IncrementalRunWriter(tmp_path / "run.csv", {"source": "emulator", "notes": ["bench test"]})
+    for k in range(3):
+        writer.append(s["t"][k], s["q_ref"][k], s["q"][k], s["dq"][k], s["current"][k])
+    during = read_run(tmp_path / "run.csv")
+    assert during.n_samples == 3
+    assert during.meta["notes"] == ["bench test", UNFINISHED_NOTE]
+    writer.close(notes=["partial run: servo 5 stopped answering"], meta={"timing": {"achieved_rate_hz": 49.9}})
+    after = read_run(tmp_path / "run.csv")
+    assert after.meta["notes"] == ["bench test", "partial run: servo 5 stopped answering"]
+    assert after.meta["timing"] == {"achieved_rate_hz": 49.9}
+    assert not (tmp_path / "run.json.tmp").exists()
+
+
+def test_refuses_to_overwrite_unless_forced(tmp_path: Path) -> None:
+    (tmp_path / "run.json").write_text("{}")
+    with pytest.raises(FileExistsError, match="run.json already exists; pass --force"):
+        IncrementalRunWriter(tmp_path / "run.csv", {})
+    IncrementalRunWriter(tmp_path / "run.csv", {}, force=True).close()
+    with pytest.raises(FileExistsError, match="run.csv already exists"):
+        IncrementalRunWriter(tmp_path / "run.csv", {})
+    with pytest.raises(InputError, match="must end in .csv"):
+        IncrementalRunWriter(tmp_path / "run.txt", {})
+
+
+def test_samples_survive_a_killed_process(tmp_path: Path) -> None:
+    out = tmp_path / "killed.csv"
+    script = textwrap.dedent(f"""
+        import os, signal
+        import numpy as np
+        from hardware.runwriter import IncrementalRunWriter
+        w = IncrementalRunWriter({str(out)!r}, {{"source": "hardware"}})
+        for k in range(40):
+            w.append(0.02 * k, np.zeros(11), np.full(11, k), np.zeros(11), np.zeros(11))
+        os.kill(os.getpid(), signal.SIGKILL)
+    """)
+    proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, timeout=60)
+    assert proc.returncode == -9, proc.stderr.decode()
+    run = read_run(out)
+    assert run.n_samples == 40
+    np.testing.assert_array_equal(run.q[:, 0], np.arange(40))
+    assert json.loads((tmp_path / "killed.json").read_text())["notes"] == [UNFINISHED_NOTE]
