@@ -13,6 +13,7 @@ from cobra_model.model import CobraModel
 from cobra_model.runs import read_run, write_run
 from integrators.runs import simulate_gait, simulate_like
 from integrators.simulator import SimSettings
+from sysid.effects import EffectLibrary, parse_effects
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -30,6 +31,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="servo loop period [s], a multiple of --dt (default = --dt)")
     p.add_argument("--heading", type=float, default=0.0, help="initial heading [deg] (default 0)")
     p.add_argument("--rate", type=float, default=100.0, help="output sample rate [Hz] (default 100)")
+    p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE[,NAME=VALUE]",
+                   help="add a physical effect the nominal model lacks, VALUE its main parameter in SI "
+                        "units: joint_coulomb_friction [N m], backlash [rad half-width], actuator_delay [s], "
+                        "torque_saturation [N m], anisotropic_ground_friction [sideways/forward ratio], "
+                        "encoder_offset [rad], link_mass_error [kg]")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.set_defaults(func=run)
 
@@ -37,6 +43,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     out = check_run_writable(args.out, args.force)
     params = load_params(args.params)
+    if args.effect:
+        params = EffectLibrary().transform(params, parse_effects(args.effect), frozen=True)
     try:
         settings = SimSettings(dt=args.dt, control_dt=args.control_dt or args.dt)
     except ValueError as exc:

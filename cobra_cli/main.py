@@ -22,6 +22,7 @@ COMMANDS: tuple[str, ...] = (
     "import-optitrack",
     "replay",
     "fit",
+    "diagnose",
     "record",
     "emulate",
 )

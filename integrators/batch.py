@@ -1,8 +1,8 @@
 """Batched rollouts: many environments stepped together (Pinocchio ``abaInParallel``).
 
-Every environment shares the robot and the transmission inertia (``armature``: Pinocchio's
-``ModelPool`` hands its models to threads, not to batch entries, so the inertia must be common)
-and may differ in every other parameter (ground, damping, motor constant, effects) and in its
+Every environment shares the robot, its transmission inertia (``armature``) and link masses
+(Pinocchio's ``ModelPool`` hands its models to threads, not to batch entries, so the inertia must
+be common) and may differ in every other parameter (ground, damping, motor constant, effects) and in its
 state and commands. The forces of all environments are one compiled call, the dynamics one
 ``abaInParallel`` call and the update one compiled call per step.
 """
@@ -52,10 +52,10 @@ class BatchSimulator:
                  threads: int = 2):
         if not params:
             raise InputError("a batch needs at least one parameter set")
-        arm = {tuple(p.per_joint("armature")) for p in params}
+        arm = {(tuple(p.per_joint("armature")), p.get("link_mass_error", 0.0)) for p in params}
         if len(arm) != 1:
-            raise InputError("all parameter sets of a batch must share 'armature' (Pinocchio's ModelPool "
-                             "gives one model per thread); evaluate other armatures in other batches")
+            raise InputError("all parameter sets of a batch must share 'armature' and 'link_mass_error' "
+                             "(Pinocchio's ModelPool gives one model per thread); evaluate others in other batches")
         self.sims = [Simulator(model, p, settings) for p in params]
         first = self.sims[0]
         self.settings = first.settings

@@ -18,9 +18,10 @@ PWM duty is held between ticks while the motor torque, which depends on the join
 the back-EMF, is re-evaluated every physics step.
 
 Model effects beyond the nominal parameter table enter through parameters of the same set, all
-inactive by default: ``joint_coulomb`` [N m], ``torque_limit`` [N m], ``lateral_friction_ratio``,
-``backlash`` [rad] (a dead zone on the position loop's error), ``encoder_offset`` [rad]
-(the encoder reads ``q + offset``) and ``actuator_delay`` [s] (commands reach the servo late).
+inactive by default (see ``sysid.effects``): ``joint_coulomb`` [N m], ``torque_limit`` [N m],
+``lateral_friction_ratio``, ``backlash`` [rad] (a dead zone on the position loop's error),
+``encoder_offset`` [rad] (the encoder reads ``q + offset``), ``actuator_delay`` [s] (commands
+reach the servo late) and ``link_mass_error`` [kg] (added to the root module).
 """
 from __future__ import annotations
 
@@ -130,6 +131,19 @@ class Trajectory:
     current: np.ndarray
 
 
+def delay_commands(table: np.ndarray, delay_s: float, control_dt: float) -> np.ndarray:
+    """Commands (n_ticks, n_joints) as the servos receive them ``delay_s`` [s] late.
+
+    Fractional ticks are linearly interpolated so that the delay is a smooth parameter; before
+    the first command arrives the servos hold the first one.
+    """
+    if delay_s <= 0:
+        return np.ascontiguousarray(table)
+    k = np.arange(len(table)) - delay_s / control_dt
+    idx = np.arange(len(table))
+    return np.ascontiguousarray(np.column_stack([np.interp(k, idx, table[:, j]) for j in range(table.shape[1])]))
+
+
 class Simulator:
     """Immutable simulator of one robot model with one parameter set.
 
@@ -146,6 +160,8 @@ class Simulator:
         p, s = self.params, self.settings
         n = model.n_joints
         per_joint = lambda name, default: p.per_joint(name, default)[:n]  # noqa: E731
+        if p.get("link_mass_error", 0.0):
+            model = model.with_link_mass(model.body_names[0], p.value("link_mass_error"))
         self.model = model.with_armature(per_joint("armature", None))
         self._pin = self.model.pin_model
         self._data = self._pin.createData()
@@ -164,7 +180,7 @@ class Simulator:
         act[:, K.A_ENC_OFFSET] = per_joint("encoder_offset", 0.0)
         act[:, K.A_BACKLASH] = per_joint("backlash", 0.0)
         self.act = act
-        self.delay_ticks = int(round(p.get("actuator_delay", 0.0) / s.control_dt))
+        self.delay_s = p.get("actuator_delay", 0.0)
         g = s.gains
         scal = np.zeros(K.N_SCAL)
         scal[K.S_DT], scal[K.S_VOLTAGE], scal[K.S_RESISTANCE] = s.dt, s.voltage, WINDING_RESISTANCE_OHM
@@ -282,10 +298,7 @@ class Simulator:
             if len(table) < n_ticks:
                 table = np.vstack([table, np.repeat(table[-1:], n_ticks - len(table), axis=0)])
             table = table[:n_ticks]
-        if self.delay_ticks:
-            idx = np.maximum(np.arange(n_ticks) - self.delay_ticks, 0)
-            table = table[idx]
-        return np.ascontiguousarray(table)
+        return delay_commands(table, self.delay_s, self.settings.control_dt)
 
     def rollout(self, state: SimState, q_ref: Callable[[np.ndarray], np.ndarray] | np.ndarray,
                 duration: float, *, record_every: int = 1, torque_on: np.ndarray | None = None,

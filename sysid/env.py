@@ -15,7 +15,7 @@ from gymnasium import spaces
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 
-#: Objective terms that enter the observation (after :data:`TERMS` normalisation), in order.
+#: Objective terms that enter the observation when ``observe_terms`` is set, in order.
 OBSERVED_TERMS: tuple[str, ...] = ("head_final_m", "head_mean_m", "joint_rmse_rad", "cpg_sq")
 #: Observed terms are ``log10(term / reference term)`` clipped to +-this many decades, then
 #: divided by it (so each lies in [-1, 1]).
@@ -84,19 +84,27 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
     ``-terms["total"]`` of the parameters after the step: the objective's weighted external
     (final head position error [m]) plus internal (joint RMSE [rad] and squared CPG errors
     [rad^2]) errors, so 0 is a perfect match. A modification that gives invalid parameters
-    (``mu_s < mu_c``) or makes a simulation diverge is not applied: the parameters stay and the
-    reward is ``-failure_factor`` times the total at the initial parameters.
+    (``mu_s < mu_c``), makes a simulation diverge or gives a non-finite total is not applied:
+    the parameters stay and the reward is ``-failure_factor`` times the total at the initial
+    parameters.
 
     ## Starting State
 
     The initial parameters of ``objective.params``, each unit coordinate jittered by a uniform
     offset in [-start_jitter, start_jitter] (drawn from ``self.np_random``) and clipped to
-    [0, 1].
+    [0, 1]. The initial parameters are evaluated once, at construction; a jittered start costs
+    one evaluation per reset (and falls back to the initial parameters if it fails).
 
     ## Episode End
 
     The episode is truncated after ``episode_length`` steps; it never terminates (there is no
     absorbing state: the objective's minimum is unknown).
+
+    ## Info
+
+    ``reset`` and ``step`` return ``{"z": current unit coordinates, "terms": their objective
+    terms, "failed": whether the step's modification was rejected, "best_total": the lowest
+    total so far}``.
 
     ## Arguments
 
@@ -105,19 +113,21 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
     - ``episode_length``: steps per episode (default 8).
     - ``max_step``: largest change of a unit coordinate per step (default 0.1).
     - ``start_jitter``: half-width of the uniform start offset in unit coordinates (default 0).
-    - ``observe_terms``: append the normalised objective terms to the observation (default True).
+    - ``observe_terms``: append the normalised objective terms to the observation (default
+      False: the paper's state is the parameters alone, which are a Markov state here since
+      the terms are a function of them).
     - ``failure_factor``: penalty of a failed evaluation in units of the initial total (default 2).
 
     Raises:
         InputError: for a non-positive ``episode_length``, ``max_step`` outside (0, 1],
             ``start_jitter`` outside [0, 1], a ``failure_factor`` below 1, or initial
-            parameters whose simulation diverges.
+            parameters where the objective is not finite.
     """
 
     metadata = {"render_modes": []}
 
     def __init__(self, objective: TermsObjective, *, episode_length: int = 8, max_step: float = 0.1,
-                 start_jitter: float = 0.0, observe_terms: bool = True, failure_factor: float = 2.0):
+                 start_jitter: float = 0.0, observe_terms: bool = False, failure_factor: float = 2.0):
         if episode_length < 1:
             raise InputError(f"episode_length must be >= 1 step, got {episode_length}")
         if not 0.0 < max_step <= 1.0:
@@ -143,8 +153,8 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
         self.evaluations = 0
         reference = self._evaluate(self.initial_z)
         if reference is None:
-            raise InputError("the initial parameters do not simulate (the rollout diverged): "
-                             f"{objective.params!r}")
+            raise InputError("the objective is not finite at the initial parameters (invalid, diverging "
+                             f"or NaN terms): {objective.params!r}")
         #: Terms at the initial parameters: the observation's reference and the failure scale.
         self.reference_terms: dict[str, float] = reference
         self.failure_total = failure_factor * reference["total"]
@@ -156,16 +166,18 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # -- evaluation ---------------------------------------------------------------------------
     def _evaluate(self, z: np.ndarray) -> dict[str, float] | None:
-        """Objective terms at unit coordinates ``z``, or None for invalid or diverging parameters."""
+        """Objective terms at unit coordinates ``z``, or None for invalid parameters, a diverging
+        simulation or a non-finite total."""
         try:
             x = self.objective.params.from_unit(z).as_vector()
         except InputError:
             return None
         self.evaluations += 1
         try:
-            return self.objective.terms(x[None, :])[0]
+            terms = self.objective.terms(x[None, :])[0]
         except RuntimeError:  # integrators.simulator.SimulationDiverged and the batch's divergence
             return None
+        return terms if np.isfinite(terms["total"]) else None
 
     def _record(self, z: np.ndarray, terms: dict[str, float]) -> None:
         """Make ``z`` current and remember it if it is the best so far."""
@@ -174,6 +186,7 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
             self.best_z, self.best_terms = z.copy(), dict(terms)
 
     def _observation(self) -> np.ndarray:
+        """z, then (with ``observe_terms``) the normalised terms, as float32."""
         if not self.observe_terms:
             return self._z.astype(np.float32)
         ratio = [np.log10((self._terms[k] + TERM_FLOOR) / (self.reference_terms[k] + TERM_FLOOR))
@@ -182,6 +195,7 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
         return np.concatenate([self._z, scaled]).astype(np.float32)
 
     def _info(self, failed: bool) -> dict[str, Any]:
+        """The info dict of ``reset`` and ``step`` (see the class docstring)."""
         return {"z": self._z.copy(), "terms": dict(self._terms), "failed": failed,
                 "best_total": self.best_terms["total"]}
 
@@ -191,13 +205,13 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
         """Start from the (jittered) initial parameters; ``options`` are not used."""
         super().reset(seed=seed)
         self._steps = 0
-        z = self.initial_z.copy()
-        terms: dict[str, float] | None = self.reference_terms
+        z, terms = self.initial_z.copy(), self.reference_terms
         if self.start_jitter > 0.0:
-            z = np.clip(z + self.np_random.uniform(-self.start_jitter, self.start_jitter, z.size), 0.0, 1.0)
-            terms = self._evaluate(z)
-            if terms is None:  # a jittered start that does not simulate: start from the initial one
-                z, terms = self.initial_z.copy(), self.reference_terms
+            offset = self.np_random.uniform(-self.start_jitter, self.start_jitter, z.size)
+            jittered = np.clip(z + offset, 0.0, 1.0)
+            jittered_terms = self._evaluate(jittered)
+            if jittered_terms is not None:  # else start from the initial parameters
+                z, terms = jittered, jittered_terms
         self._record(z, dict(terms))
         return self._observation(), self._info(False)
 

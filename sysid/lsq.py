@@ -3,7 +3,9 @@
 Minimises ``0.5 ||r(x)||^2`` over the free parameters, ``r`` the stacked weighted residuals of
 :mod:`sysid.objective` (head positions over time and joint angles over time), by a
 Levenberg-Marquardt iteration whose every step is a box- (and ``mu_s >= mu_c``-) constrained
-quadratic programme solved by CasADi's ``conic`` interface (its own active-set solver, qrqp):
+quadratic programme solved by CasADi's ``conic`` interface with qpOASES (CasADi's own qrqp
+corrupted the heap here on one-variable problems, found by the discrepancy workflow's
+one-parameter refits; qpOASES's licence banner is kept off stdout):
 
     min_dz  0.5 dz^T (J^T J + lambda diag(J^T J)) dz + (J^T r)^T dz
     s.t.    0 <= z + dz <= 1,   mu_s(z + dz) >= mu_c(z + dz)
@@ -26,10 +28,13 @@ below 1e-4 of the largest), or when its 95 % interval is wider than its value.
 """
 from __future__ import annotations
 
+import os
+import sys
 import time
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Callable
+from typing import Callable, Iterator
 
 import casadi as ca
 import numpy as np
@@ -94,6 +99,20 @@ class FitResult:
     seconds: float
     method: str = "lsq"
     extra: dict = field(default_factory=dict)
+
+
+@contextmanager
+def _quiet_stdout() -> Iterator[None]:
+    """Silence C-level writes to stdout (qpOASES prints a banner when first constructed)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as null:
+            os.dup2(null.fileno(), 1)
+            yield
+    finally:
+        os.dup2(saved, 1)
+        os.close(saved)
 
 
 def _unit_jacobian(params: ModelParameters) -> np.ndarray:
@@ -163,8 +182,10 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     log: list[IterationLog] = []
     damping = 1e-3
     status = FitStatus.MAX_ITERATIONS
-    qp = ca.conic("lm_step", "qrqp", {"h": ca.Sparsity.dense(d, d), "a": ca.Sparsity.dense(1 if friction else 0, d)},
-                  {"print_iter": False, "print_header": False, "print_info": False, "error_on_fail": False})
+    with _quiet_stdout():
+        qp = ca.conic("lm_step", "qpoases", {"h": ca.Sparsity.dense(d, d),
+                                             "a": ca.Sparsity.dense(1 if friction else 0, d)},
+                      {"printLevel": "none", "error_on_fail": False})
     J = np.zeros((r.size, d))
     for it in range(max_iterations):
         # forward differences, stepping inward at the upper bound

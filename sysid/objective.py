@@ -32,7 +32,7 @@ from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run, interpolate_rows
 from integrators.batch import BatchSimulator
 from integrators.runs import InitialPose
-from integrators.simulator import SimSettings, Simulator
+from integrators.simulator import SimSettings, delay_commands
 from sysid.executor import Executor, LocalExecutor
 
 
@@ -128,19 +128,23 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
     model = CobraModel.load()
     sets = [spec.params.update_from_vector(x) for x in np.atleast_2d(X)]
     out: list[Simulated | None] = [None] * len(sets)
+    # parameter vectors share a batch when they share what the batch cannot vary per
+    # environment: the Pinocchio model (armature, link mass) and the command timing (delay)
     groups: dict[tuple, list[int]] = {}
     for i, p in enumerate(sets):
-        groups.setdefault(tuple(p.per_joint("armature")), []).append(i)
+        key = (tuple(p.per_joint("armature")), p.get("link_mass_error", 0.0), p.get("actuator_delay", 0.0))
+        groups.setdefault(key, []).append(i)
     targets = spec.targets
     n_runs = len(targets)
     n_ticks = max(len(tg.ticks) for tg in targets)
-    goals = np.empty((n_ticks, n_runs, targets[0].ticks.shape[1]))
-    for r, tg in enumerate(targets):
-        goals[:, r] = tg.ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
     every = max(1, int(round(1.0 / (spec.weights.sample_hz * spec.settings.dt))))
     # one extra record period so that every sample time lies inside the recorded span
     duration = max(tg.duration for tg in targets) + every * spec.settings.dt
-    for members in groups.values():
+    for (_, _, delay), members in groups.items():
+        goals = np.empty((n_ticks, n_runs, targets[0].ticks.shape[1]))
+        for r, tg in enumerate(targets):
+            ticks = delay_commands(tg.ticks, delay, spec.settings.control_dt)
+            goals[:, r] = ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
         env_params = [sets[i] for i in members for _ in targets]
         batch = BatchSimulator(model, env_params, spec.settings, threads=spec.threads)
         states = []

@@ -271,3 +271,34 @@ def plot_error_bars(table: Mapping[str, Mapping[str, float]], out: str | Path, y
     ax.legend(fontsize="small")
     ax.grid(True, axis="y", alpha=0.3)
     return _save(fig, out)
+
+
+#: Localisation numbers drawn by :func:`plot_signature` (all in [0, 1] or near it).
+SIGNATURE_KEYS: tuple[str, ...] = ("head_share", "r_sign", "r_vel", "r_effort", "offset_score",
+                                   "sideways_share")
+
+
+def plot_signature(signatures: Sequence[tuple[str, Any]], out: str | Path, *, title: str = "") -> Path:
+    """Residual signatures side by side: the localisation numbers and the joint residual RMS
+    per gait-phase bin, one colour per signature (e.g. before / after adding an effect)."""
+    _require(signatures, "plot_signature", "signatures")
+    fig = _new_figure(10, 4)
+    ax1, ax2 = fig.subplots(1, 2)
+    colours = _colours(len(signatures))
+    width = 0.8 / len(signatures)
+    x = np.arange(len(SIGNATURE_KEYS))
+    for k, (label, sig) in enumerate(signatures):
+        vals = [getattr(sig, key) for key in SIGNATURE_KEYS]
+        ax1.bar(x + k * width, vals, width, label=label, color=colours[k])
+        ax2.plot(np.arange(8) / 8 + 1 / 16, sig.phase_rms_rad, "o-", color=colours[k], label=label)
+    ax1.set_xticks(x + 0.4 - width / 2, SIGNATURE_KEYS, rotation=30, ha="right")
+    ax1.set_ylabel("localisation number")
+    ax1.set_title("residual signature")
+    ax1.legend()
+    ax2.set_xlabel("gait phase [cycles]")
+    ax2.set_ylabel("joint residual RMS [rad]")
+    ax2.set_title("joint residual over the gait cycle")
+    ax2.grid(alpha=0.3)
+    if title:
+        fig.suptitle(title)
+    return _save(fig, out)

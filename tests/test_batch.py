@@ -16,7 +16,7 @@ def test_batch_matches_single_rollouts(cobra):
     gait = SidewindingGait(0.5)
     table = gait.q_ref(np.arange(1001) * 1e-3)
     states = [s.rest_state(heading_rad=h) for s, h in zip(batch.sims, (0.0, 1.0, 2.0))]
-    Q, V = batch.rollout(states, np.repeat(table[:, None, :], 3, axis=1), 1.0)
+    Q, V, _, _ = batch.rollout(states, np.repeat(table[:, None, :], 3, axis=1), 1.0)
     for e, (sim, st) in enumerate(zip(batch.sims, states)):
         tr = sim.rollout(st, table, 1.0)
         assert np.allclose(Q[e], tr.q[-1], atol=1e-12)

@@ -1,0 +1,112 @@
+"""``cobra diagnose``: find where simulation and measurement disagree and name the missing effect."""
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from cobra_cli.common import check_writable, load_params
+from cobra_model.errors import InputError
+from sysid.diagnose import DiagnoseConfig, diagnose
+from sysid.runsets import expand, read_runs
+
+OUTPUTS = ("report.html", "diagnosis.json", "augmented_params.json")
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "diagnose", help="find the physical effect the model lacks, add it, refit, show the gap",
+        description="Fit the model, localise the residuals, try the library of candidate effects "
+                    "(joint_coulomb_friction, backlash, actuator_delay, torque_saturation, "
+                    "anisotropic_ground_friction, encoder_offset, link_mass_error), name the one the "
+                    "held-out runs support, add it and refit. A manifest.json among RUNS gives its split.")
+    p.add_argument("runs", nargs="+", metavar="RUNS", help="training run CSVs or a dataset manifest.json")
+    p.add_argument("--holdout", nargs="*", default=[], metavar="RUN", help="held-out runs (added to a manifest's)")
+    p.add_argument("--out", required=True, type=Path, help="output folder (report.html, diagnosis.json, "
+                   "augmented_params.json)")
+    p.add_argument("--json", action="store_true", help="print diagnosis.json instead of the summary")
+    p.add_argument("--max-effects", type=int, default=2, help="effects to look for in turn (default 2)")
+    p.add_argument("--params", help="starting parameter file (default nominal)")
+    p.add_argument("--free", help="comma-separated parameters the fits tune (default: all not frozen)")
+    p.add_argument("--fit-runs", type=int, default=DiagnoseConfig.fit_runs,
+                   help=f"training runs used by the fits, spread over the gaits (default "
+                        f"{DiagnoseConfig.fit_runs}; 0 = all)")
+    p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.out.exists() and not args.out.is_dir():
+        raise InputError(f"--out {args.out}: exists and is not a directory")
+    if args.out.exists():
+        for name in OUTPUTS:
+            check_writable(args.out / name, args.force)
+    if args.max_effects < 0:
+        raise InputError(f"--max-effects must be >= 0, got {args.max_effects}")
+    start = load_params(args.params)
+    if args.free:
+        start = start.with_frozen(free=[n.strip() for n in args.free.split(",") if n.strip()])
+    train_paths, val_paths = expand(args.runs)
+    val_paths += [Path(p) for p in args.holdout]
+    if not train_paths or not val_paths:
+        raise InputError("diagnose needs training runs and held-out runs (--holdout, or a manifest's validation)")
+    train, holdout = read_runs(train_paths), read_runs(val_paths)
+    config = DiagnoseConfig(max_effects=args.max_effects, fit_runs=args.fit_runs)
+    from tqdm import tqdm
+    bar = tqdm(desc="diagnose", unit="step", leave=False, disable=None)
+
+    def progress(message: str) -> None:
+        bar.update(1)
+        bar.set_postfix_str(message)
+        if bar.disable:
+            print(f"  ... {message}", flush=True)
+
+    result = diagnose(train, holdout, params=start, config=config, progress=progress)
+    bar.close()
+    args.out.mkdir(parents=True, exist_ok=True)
+    result.params_after.save(args.out / "augmented_params.json", force=True)
+    doc = result.to_json()
+    doc["augmented_params"] = str(args.out / "augmented_params.json")
+    (args.out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    _write_report(result, holdout, args.out)
+    if args.json:
+        print(json.dumps(doc, indent=2, default=float))
+        return 0
+    print(result.verdict)
+    for e in result.effects:
+        (pname, p), = e["params"].items()
+        ci = p["ci95"]
+        ci_text = f" (95% [{ci[0]:.4g}, {ci[1]:.4g}])" if ci else ""
+        print(f"  {e['name']}: {pname} = {p['value']:.4g} {p['unit']}{ci_text}; held-out cost "
+              f"-{100 * e['held_out_improvement']:.0f} %, dBIC {e['evidence']['delta_bic']:.0f}")
+    gb, ga = result.gap_before["mean"], result.gap_after["mean"]
+    print(f"  held-out head final error {gb['head_final_error_m']:.4f} -> {ga['head_final_error_m']:.4f} m, "
+          f"joint RMSE {gb['joint_rmse_rad']:.4f} -> {ga['joint_rmse_rad']:.4f} rad ({result.seconds:.0f} s)")
+    print(f"report: {args.out / 'report.html'}; model with the effect: {args.out / 'augmented_params.json'}")
+    return 0
+
+
+def _write_report(result, holdout, out: Path) -> None:
+    from sysid import plots
+    from sysid.report import HtmlReport, evaluate_held_out, held_out_figures
+
+    page = HtmlReport("cobra diagnose")
+    page.heading("Verdict")
+    page.paragraph(result.verdict)
+    page.heading("Where the fitted model disagrees (held-out and training residuals)")
+    page.paragraph(result.signature.summary())
+    page.figure(plots.plot_signature([("before", result.signature), ("after", result.signature_after)],
+                                     out / "signature.png", title="residual signature before and after"),
+                "residual signature before and after")
+    for i, round_ in enumerate(result.rounds, start=1):
+        page.heading(f"Candidates, round {i}")
+        page.table(["effect", "fitted value", "unit", "held-out cost reduction", "dBIC", "signature match"],
+                   [[c.name, c.value, c.unit, c.held_out_improvement, c.delta_bic, c.signature_match]
+                    for c in round_])
+    page.heading("Augmented model")
+    fit = result.fits[-1]
+    page.table(["name", "unit", "value", "95% low", "95% high", "note"],
+               [[r.name, r.unit, r.value, r.ci_low, r.ci_high, r.reason] for r in fit.report])
+    held = evaluate_held_out(holdout, result.params_before, result.params_after)
+    held_out_figures(held, out, ("fitted, no effect", "with effect"), page)
+    page.write(out / "report.html")

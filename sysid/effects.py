@@ -1,0 +1,163 @@
+"""Candidate physical effects the nominal model may lack: a composable library.
+
+In the shape of pysindy's feature libraries: an :class:`Effect` knows its name, its parameter
+(unit, bounds, the value at which it is inactive and a starting value for fitting), how it
+enters the dynamics or the measurement, and the residual signature it predicts; an
+:class:`EffectLibrary` combines effects (``lib_a + lib_b``), lists them
+(``get_feature_names``) and adds their parameters to a parameter set (``transform``).
+
+Every effect is already part of the simulator (``integrators.simulator``), inactive by default;
+adding its parameter to a :class:`ModelParameters` switches it on:
+
+| effect | parameter | enters |
+| --- | --- | --- |
+| ``joint_coulomb_friction`` | ``joint_coulomb`` [N m] | ``-tau_c tanh(qdot / eps)`` at every joint |
+| ``backlash`` | ``backlash`` [rad] | dead zone of that half-width on the servo loop's error |
+| ``actuator_delay`` | ``actuator_delay`` [s] | commands reach the servos late (fractional ticks interpolated) |
+| ``torque_saturation`` | ``torque_limit`` [N m] | motor torque clipped (voltage/current limit) |
+| ``anisotropic_ground_friction`` | ``lateral_friction_ratio`` [1] | sideways friction = ratio x along-body friction |
+| ``encoder_offset`` | ``encoder_offset`` [rad] | every encoder reads ``q + offset`` (the loop regulates the reading) |
+| ``link_mass_error`` | ``link_mass_error`` [kg] | mass added to (or removed from) the head module, a payload |
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Iterable, Iterator, Mapping
+
+from cobra_model.design import SERVO_STALL_TORQUE_NM
+from cobra_model.errors import InputError
+from cobra_model.parameters import ModelParameters, Parameter
+
+
+@dataclass(frozen=True)
+class Effect:
+    """One candidate effect.
+
+    Attributes:
+        name: the effect's stable name (``joint_coulomb_friction``, ...).
+        parameter: its main parameter; ``value`` is the inactive value.
+        start: where a fit starts it (inside the bounds, where the effect acts).
+        enters: how it enters the dynamics or the measurement.
+        signature: the residual signature it predicts, in words.
+        features: the localisation numbers (keys of :class:`sysid.signature.Signature`) whose
+            magnitude indicates it, with a sign (+1: large is evidence, -1: small is evidence).
+    """
+
+    name: str
+    parameter: Parameter
+    start: float
+    enters: str
+    signature: str
+    features: tuple[tuple[str, float], ...]
+
+    def parameters(self, value: float | None = None, *, frozen: bool = False) -> list[Parameter]:
+        """The effect's parameter at ``value`` (default: its fitting start), free unless ``frozen``."""
+        v = self.start if value is None else float(value)
+        try:
+            return [replace(self.parameter, value=v, frozen=frozen)]
+        except InputError as exc:
+            raise InputError(f"effect {self.name}: {exc}") from None
+
+
+def _p(name: str, unit: str, inactive: float, lo: float, hi: float, doc: str, log: bool = False,
+       group: str = "") -> Parameter:
+    return Parameter(name, unit, inactive, lo, hi, log_scale=log, group=group, doc=doc)
+
+
+EFFECTS: tuple[Effect, ...] = (
+    Effect("joint_coulomb_friction",
+           _p("joint_coulomb", "N m", 0.0, 0.0, 3.0, "Coulomb friction torque of the gearbox", group="joint_coulomb_friction"),
+           0.05, "a torque -tau_c tanh(qdot / 0.05 rad/s) at every joint",
+           "joint residuals on all joints, correlated with sign(qdot), largest at velocity reversals",
+           (("r_sign", 1.0), ("reversal_ratio", 1.0))),
+    Effect("backlash",
+           _p("backlash", "rad", 0.0, 0.0, 0.2, "half-width of the transmission dead zone", group="backlash"),
+           0.005, "the servo loop does not act on the first +-b of its position error",
+           "joint residuals correlated with sign(qdot), a lag of about b after each reversal",
+           (("r_sign", 1.0), ("reversal_ratio", 1.0))),
+    Effect("actuator_delay",
+           _p("actuator_delay", "s", 0.0, 0.0, 0.2, "command / bus latency", group="actuator_delay"),
+           0.005, "every servo receives its command late by the delay",
+           "joint residuals proportional to -qdot (a time shift): best lag > 0",
+           (("r_vel", 1.0), ("lag_s", 1.0))),
+    Effect("torque_saturation",
+           _p("torque_limit", "N m", SERVO_STALL_TORQUE_NM, 0.5, SERVO_STALL_TORQUE_NM,
+              "motor torque limit (voltage/current)", group="torque_saturation"),
+           4.0, "the motor torque is clipped at the limit",
+           "joint residuals grow with commanded effort; amplitudes fall short at the fast, loaded joints",
+           (("r_effort", 1.0), ("amplitude_ratio", -1.0))),
+    Effect("anisotropic_ground_friction",
+           _p("lateral_friction_ratio", "1", 1.0, 0.2, 5.0, "sideways / along-body friction ratio",
+              log=True, group="anisotropic_ground_friction"),
+           1.2, "sideways friction of every contact scaled by the ratio (along-body unchanged)",
+           "head-path residual with joints matched; slip residual sideways to the body",
+           (("head_share", 1.0), ("sideways_share", 1.0))),
+    Effect("encoder_offset",
+           _p("encoder_offset", "rad", 0.0, -0.2, 0.2, "encoder zero offset (all joints)", group="encoder_offset"),
+           0.005, "the encoders read q + offset and the servo loop regulates the reading",
+           "a constant offset of the joint residuals, independent of velocity",
+           (("offset_score", 1.0),)),
+    Effect("link_mass_error",
+           _p("link_mass_error", "kg", 0.0, -0.5, 2.0, "mass added to the head module (payload)", group="link_mass_error"),
+           0.05, "the head module's mass (and inertia, scaled) changes by the parameter",
+           "head-path residual growing over the run; joint residuals small",
+           (("head_share", 1.0), ("sideways_share", -1.0))),
+)
+
+
+class EffectLibrary:
+    """An ordered, composable set of effects."""
+
+    def __init__(self, effects: Iterable[Effect] = EFFECTS):
+        self.effects = tuple(effects)
+        names = [e.name for e in self.effects]
+        if len(set(names)) != len(names):
+            raise InputError(f"duplicate effects in a library: {names}")
+
+    def __add__(self, other: "EffectLibrary") -> "EffectLibrary":
+        return EffectLibrary(self.effects + tuple(e for e in other.effects if e.name not in self.names))
+
+    def __iter__(self) -> Iterator[Effect]:
+        return iter(self.effects)
+
+    def __len__(self) -> int:
+        return len(self.effects)
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(e.name for e in self.effects)
+
+    def get_feature_names(self) -> list[str]:
+        """Effect names with their parameter: ``joint_coulomb_friction(joint_coulomb [N m])``."""
+        return [f"{e.name}({e.parameter.name} [{e.parameter.unit}])" for e in self.effects]
+
+    def __getitem__(self, name: str) -> Effect:
+        for e in self.effects:
+            if e.name == name:
+                return e
+        raise InputError(f"unknown effect {name!r}; known: {', '.join(self.names)}")
+
+    def transform(self, params: ModelParameters, values: Mapping[str, float | None], *,
+                  frozen: bool = False) -> ModelParameters:
+        """``params`` with the named effects' parameters added (value None: the fitting start)."""
+        extra: list[Parameter] = []
+        for name, value in values.items():
+            extra += self[name].parameters(value, frozen=frozen)
+        return params.with_parameters(extra)
+
+
+def parse_effects(text: Iterable[str], library: EffectLibrary | None = None) -> dict[str, float]:
+    """``NAME=VALUE[,NAME=VALUE]`` strings (the CLI's ``--effect``) to {effect: value}."""
+    lib = library or EffectLibrary()
+    out: dict[str, float] = {}
+    for chunk in text:
+        for item in filter(None, (s.strip() for s in chunk.split(","))):
+            name, sep, value = item.partition("=")
+            if not sep:
+                raise InputError(f"--effect {item!r}: expected NAME=VALUE, e.g. joint_coulomb_friction=0.2")
+            lib[name.strip()]
+            try:
+                out[name.strip()] = float(value)
+            except ValueError:
+                raise InputError(f"--effect {item!r}: VALUE must be a number in SI units") from None
+    return out
