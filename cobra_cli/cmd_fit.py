@@ -27,6 +27,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-iterations", type=int, default=20, help="least squares: Jacobian evaluations at most")
     p.add_argument("--timesteps", type=int, default=2000, help="PPO: environment steps at most")
     p.add_argument("--seed", type=int, default=0, help="random seed (PPO)")
+    p.add_argument("--envs", type=int, default=2, help="PPO: environment processes (default 2)")
     p.add_argument("--executor", choices=("local", "ray"), default="local", help="where evaluations run")
     p.add_argument("--ray-address", default=None, help="join this Ray cluster (with --executor ray)")
     p.add_argument("--workers", type=int, default=1, help="local processes for evaluations (default 1: "
@@ -86,8 +87,13 @@ def run(args: argparse.Namespace) -> int:
         curve = report_dir / "reward_curve.png" if report_dir else None
         if curve is not None:
             report_dir.mkdir(parents=True, exist_ok=True)
+        def ppo_progress(timesteps: int, best_total: float, mean_reward: float) -> None:
+            bar.update(timesteps - bar.n)
+            bar.set_postfix(best=f"{best_total:.4g}", reward=f"{mean_reward:.4g}")
+
+        bar.total = args.timesteps
         result = fit_ppo(objective, budget_seconds=args.budget_seconds, total_timesteps=args.timesteps,
-                         seed=args.seed, progress=progress, curve_png=curve)
+                         seed=args.seed, n_envs=args.envs, progress=ppo_progress, curve_png=curve)
     bar.close()
     executor.close()
     fitted = result.params

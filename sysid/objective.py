@@ -79,7 +79,7 @@ class RunTarget:
         dt = settings.control_dt
         ticks_t = t0 + np.arange(int(np.floor((t1 - t0) / dt + 1e-9)) + 1) * dt
         ticks = np.column_stack([np.interp(ticks_t, run.t, run.q_ref[:, j]) for j in range(run.q_ref.shape[1])])
-        ts = np.arange(0.0, t1 - t0 + 1e-9, 1.0 / sample_hz)
+        ts = np.minimum(np.arange(0.0, t1 - t0 + 1e-9, 1.0 / sample_hz), t1 - t0)
         head = interpolate_rows(t0 + ts, run.t, run.head_pos[:, :2], max_gap_samples=2)
         q = interpolate_rows(t0 + ts, run.t, run.q)
         gait = run.meta.get("gait") if isinstance(run.meta, dict) else None
@@ -213,6 +213,9 @@ class Objective:
         weights: objective weights.
         settings: simulator settings.
         executor: where parameter-vector chunks are evaluated (default: in-process).
+        threads: threads of one batched evaluation (default: 2 in-process, 1 per worker
+            process). Threads meet at a barrier every physics step, so use 1 when other
+            processes share the cores (e.g. PPO's environment processes).
     """
 
     runs: Sequence[Run]
@@ -220,6 +223,7 @@ class Objective:
     weights: Weights = field(default_factory=Weights)
     settings: SimSettings = field(default_factory=SimSettings)
     executor: Executor = field(default_factory=lambda: LocalExecutor(1))
+    threads: int | None = None
     evaluations: int = 0
 
     def __post_init__(self) -> None:
@@ -229,7 +233,7 @@ class Objective:
             raise InputError("every parameter is frozen: nothing to fit")
         self.spec = ObjectiveSpec(tuple(RunTarget.of_run(r, self.settings, self.weights.sample_hz) for r in self.runs),
                                   self.params, self.weights, self.settings,
-                                  threads=2 if self.executor.workers == 1 else 1)
+                                  threads=self.threads or (2 if self.executor.workers == 1 else 1))
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -132,9 +132,7 @@ def single_threaded(objective: Objective) -> Objective:
     with one core busy, a 0.5 s run took 0.12-0.35 s per evaluation with two threads and
     0.016 s with one (0.016 s either way on an idle machine).
     """
-    local = dataclasses.replace(objective, executor=LocalExecutor(1), evaluations=0)
-    local.spec = dataclasses.replace(local.spec, threads=1)
-    return local
+    return dataclasses.replace(objective, executor=LocalExecutor(1), threads=1, evaluations=0)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,68 @@
+"""Identification speed and quality on the shipped reference dataset: least squares vs PPO.
+
+Prints, in one run: objective evaluations per second one at a time vs batched; for each method
+the wall time, the objective evaluations it used and the held-out final head error per gait
+before (nominal) and after. Run: ``.venv/bin/python benchmarks/fit_speed.py [--lsq-iterations N]
+[--ppo-timesteps N]``.
+"""
+from __future__ import annotations
+
+import argparse
+import time
+
+import numpy as np
+
+from cobra_model import ModelParameters
+from sysid.dataset import DATA_DIR, load_manifest
+from sysid.lsq import fit_lsq
+from sysid.objective import Objective
+from sysid.report import evaluate_held_out
+from sysid.runsets import read_runs
+
+
+def evals_per_second(objective: Objective, k: int) -> float:
+    x0 = objective.params.as_vector()
+    X = np.repeat(x0[None], k, axis=0) * np.linspace(0.98, 1.02, k)[:, None]
+    X = np.clip(X, *objective.params.bounds())
+    objective.residuals(X[:1])          # compile
+    t0 = time.perf_counter()
+    objective.residuals(X)
+    return k / (time.perf_counter() - t0)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--lsq-iterations", type=int, default=8)
+    parser.add_argument("--ppo-timesteps", type=int, default=256)
+    args = parser.parse_args()
+    train_paths, val_paths = load_manifest(DATA_DIR / "manifest.json")
+    train, validation = read_runs(train_paths), read_runs(val_paths)
+    nominal = ModelParameters.nominal()
+    objective = Objective(train, nominal)
+    one, batched = evals_per_second(objective, 1), evals_per_second(objective, 10)
+    print(f"# {len(train)} training runs, {len(validation)} held out; {len(nominal.free_names)} free parameters\n")
+    print("| objective evaluation | evaluations / s |")
+    print("|---|---:|")
+    print(f"| one at a time | {one:.2f} |")
+    print(f"| batched, 10 parameter vectors | {batched:.2f} ({batched / one:.1f}x) |\n")
+    rows = []
+    t0 = time.perf_counter()
+    lsq = fit_lsq(Objective(train, nominal), max_iterations=args.lsq_iterations)
+    rows.append(("least squares (CasADi)", time.perf_counter() - t0, lsq))
+    from sysid.ppo import fit_ppo
+    t0 = time.perf_counter()
+    ppo = fit_ppo(Objective(train, nominal), total_timesteps=args.ppo_timesteps, seed=0)
+    rows.append(("PPO (stable-baselines3)", time.perf_counter() - t0, ppo))
+    held = {name: evaluate_held_out(validation, nominal, res.params) for name, _, res in rows}
+    freqs = [h.freq_hz for h in next(iter(held.values()))]
+    head = " | ".join(f"{f:g} Hz" for f in freqs)
+    print(f"| method | wall [s] | evaluations | status | held-out final head error [m], nominal -> fitted: {head} |")
+    print("|---|---:|---:|---|" + "---|" * len(freqs))
+    for name, wall, res in rows:
+        cells = " | ".join(f"{h.gap_before.to_json_dict()['head_final_error_m']:.3f} -> "
+                           f"{h.gap_after.to_json_dict()['head_final_error_m']:.3f}" for h in held[name])
+        print(f"| {name} | {wall:.0f} | {res.evaluations} | {res.status.value} | {cells} |")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,65 @@
+"""End to end: `cobra fit` and `cobra diagnose` on small data made with known parameters."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cobra_cli.main import main
+from cobra_model import ModelParameters, SidewindingGait
+from cobra_model.runs import write_run
+from integrators.runs import simulate_gait
+from sysid.effects import EffectLibrary
+
+TRUTH = ModelParameters.nominal().with_values(mu_c=0.22)
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory) -> tuple[list[Path], Path]:
+    d = tmp_path_factory.mktemp("runs")
+    truth = EffectLibrary().transform(TRUTH, {"joint_coulomb_friction": 0.4}, frozen=True)
+    paths = []
+    for i, (f, h) in enumerate(((0.5, 0.0), (0.65, 1.0), (0.5, 2.0))):
+        run = simulate_gait(SidewindingGait(f, ramp_s=0.5), 3.0, params=truth, heading_rad=h, sample_rate_hz=50)
+        paths.append(write_run(run, d / f"run{i}.csv"))
+    return paths[:2], paths[2]
+
+
+@pytest.mark.slow
+def test_fit_writes_parameters_and_report(data, tmp_path, capsys):
+    train, hold = data
+    out, report = tmp_path / "fit.json", tmp_path / "report"
+    args = ["fit", *map(str, train), "--holdout", str(hold), "--free", "mu_c", "--max-iterations", "4",
+            "--out", str(out), "--report", str(report)]
+    assert main(args) == 0
+    doc = json.loads(out.read_text())
+    assert doc["parameters"]["mu_c"]["frozen"] is False
+    assert doc["fit"]["status"] and doc["fit"]["evaluations"] > 0
+    html = (report / "report.html").read_text()
+    assert "held_out_head_error.png" in html and "replay.html" in html
+    assert ModelParameters.load(out).value("mu_c") != ModelParameters.nominal().mu_c
+    assert main(args) == 2                                  # no overwrite without --force
+    assert "--force" in capsys.readouterr().err
+
+
+@pytest.mark.slow
+def test_diagnose_writes_report_json_and_a_usable_model(data, tmp_path, capsys):
+    train, hold = data
+    out = tmp_path / "diag"
+    args = ["diagnose", *map(str, train), "--holdout", str(hold), "--out", str(out), "--free", "mu_c",
+            "--max-effects", "1", "--json"]
+    assert main(args) == 0
+    doc = json.loads((out / "diagnosis.json").read_text())
+    for key in ("effects", "gap_before", "gap_after", "signature"):
+        assert key in doc
+    assert set(doc["gap_before"]["mean"]) >= {"head_final_error_m", "head_mean_error_m", "joint_rmse_rad"}
+    for effect in doc["effects"]:
+        assert set(effect) >= {"name", "params", "evidence", "held_out_improvement"}
+    assert (out / "report.html").is_file() and (out / "signature.png").is_file()
+    # the augmented model is a parameter file the other commands accept
+    sim = tmp_path / "sim.csv"
+    assert main(["simulate", "--from", str(hold), "--params", str(out / "augmented_params.json"),
+                 "--out", str(sim)]) == 0
+    assert np.isfinite(json.loads(sim.with_suffix(".json").read_text())["params"]["parameters"]["mu_c"]["value"])

@@ -1,0 +1,75 @@
+"""The effect library and the residual localisation on analytic cases."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from cobra_model import ModelParameters, SidewindingGait
+from cobra_model.errors import InputError
+from integrators.runs import simulate_gait
+from sysid.effects import EFFECTS, EffectLibrary, parse_effects
+from sysid.signature import localise
+
+ISSUE_NAMES = ("joint_coulomb_friction", "backlash", "actuator_delay", "torque_saturation",
+               "anisotropic_ground_friction", "encoder_offset", "link_mass_error")
+
+
+def test_library_has_the_issue_names_and_composes():
+    lib = EffectLibrary()
+    assert lib.names == ISSUE_NAMES
+    assert len(lib.get_feature_names()) == 7 and "joint_coulomb_friction(joint_coulomb [N m])" in lib.get_feature_names()
+    a, b = EffectLibrary(EFFECTS[:2]), EffectLibrary(EFFECTS[1:4])
+    assert (a + b).names == ISSUE_NAMES[:4]
+    p = lib.transform(ModelParameters.nominal(), {"backlash": 0.01, "actuator_delay": None})
+    assert p.backlash == 0.01 and p.actuator_delay == lib["actuator_delay"].start
+
+
+def test_parse_effects_errors_name_the_problem():
+    assert parse_effects(["joint_coulomb_friction=0.2,actuator_delay=0.02"]) == {
+        "joint_coulomb_friction": 0.2, "actuator_delay": 0.02}
+    with pytest.raises(InputError, match="unknown effect 'friction'"):
+        parse_effects(["friction=0.2"])
+    with pytest.raises(InputError, match="NAME=VALUE"):
+        parse_effects(["backlash"])
+    with pytest.raises(InputError, match="must be a number"):
+        parse_effects(["backlash=wide"])
+    with pytest.raises(InputError, match="outside its bounds"):
+        EffectLibrary().transform(ModelParameters.nominal(), {"backlash": 1.0})
+
+
+@pytest.mark.parametrize("name,value", [("joint_coulomb_friction", 0.5), ("backlash", 0.03),
+                                        ("actuator_delay", 0.05), ("torque_saturation", 1.0),
+                                        ("anisotropic_ground_friction", 2.5), ("encoder_offset", 0.05),
+                                        ("link_mass_error", 1.0)])
+def test_every_effect_changes_the_simulated_run(name, value):
+    nominal = simulate_gait(SidewindingGait(0.5), 3.0, sample_rate_hz=50)
+    params = EffectLibrary().transform(ModelParameters.nominal(), {name: value})
+    changed = simulate_gait(SidewindingGait(0.5), 3.0, params=params, sample_rate_hz=50)
+    joint = np.abs(changed.q - nominal.q).max()
+    head = np.abs(changed.head_pos[-1, :2] - nominal.head_pos[-1, :2]).max()
+    assert joint > 1e-3 or head > 1e-3
+
+
+def test_localisation_on_analytic_residuals():
+    run = simulate_gait(SidewindingGait(0.5), 6.0, sample_rate_hz=50)
+    same = localise([(run, run)])
+    assert same.joint_rmse_rad == 0 and same.head_final_m == 0
+    # a constant encoder-like offset: the offset score is large, velocity correlations are not
+    offset = dataclasses.replace(run, q=run.q + 0.02)
+    sig = localise([(offset, run)])
+    assert sig.offset_score > 5 and abs(sig.offset_rad - 0.02) < 1e-9 and sig.r_vel < 0.1
+    # a Coulomb-like lag: residual = -c sign(qdot_ref)
+    qd = np.gradient(run.q_ref, run.t, axis=0)
+    lagged = dataclasses.replace(run, q=run.q - 0.01 * np.sign(qd))
+    sig = localise([(lagged, run)])
+    assert sig.r_sign > 0.95 and sig.r_sign_signed < 0
+    # a time shift: the measurement lags by 0.1 s
+    shift = 5
+    delayed = dataclasses.replace(run, q=np.vstack([np.repeat(run.q[:1], shift, 0), run.q[:-shift]]))
+    sig = localise([(delayed, run)])
+    assert sig.lag_s == pytest.approx(0.1, abs=0.021) and sig.r_vel > 0.8
+    # a head-path offset sideways: head channel
+    moved = dataclasses.replace(run, head_pos=run.head_pos + np.array([0.0, 0.05, 0.0]))
+    assert localise([(moved, run)]).head_share > 0.99
