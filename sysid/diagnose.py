@@ -4,7 +4,8 @@
 2. **Localise** the disagreement of the fitted model on training and held-out runs
    (:func:`sysid.signature.localise`).
 3. **Try every candidate** of the :class:`sysid.effects.EffectLibrary`: add its parameter to the
-   fitted model and refit that parameter alone (warm start, few iterations).
+   fitted model and refit it together with the free parameters (few iterations, starting the
+   effect ten times further out than its fitting start, where its cost is not flat).
 4. **Rank and name**: a candidate's evidence is (a) the held-out residual cost of the augmented
    model relative to the current one (hold-out validation: the held-out runs take no part in
    any fit) and (b) the Bayesian information criterion on the training residuals,
@@ -117,6 +118,12 @@ def signature_match(effect: Effect, sig: Signature) -> float:
     return float(np.mean(scores))
 
 
+def _decade_up(effect: Effect) -> float:
+    """A second starting value ten times further from the inactive value (inside the bounds)."""
+    p = effect.parameter
+    return float(min(max(p.value + 10.0 * (effect.start - p.value), p.min), p.max))
+
+
 def _spread(runs: Sequence[Run], n: int) -> list[Run]:
     """Up to ``n`` runs taken round-robin over the gait frequencies."""
     if n <= 0 or n >= len(runs):
@@ -170,7 +177,6 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     result.signature = localise(train_pairs + pairs)
     remaining = list(library.names)
     for round_ in range(config.max_effects):
-        frozen_all = current.with_frozen(free=[])
         train_obj = Objective(fit_set, current)
         hold_obj = Objective(list(holdout), current)
         rss0, n = _cost(train_obj, current)
@@ -179,7 +185,9 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         for name in remaining:
             effect = library[name]
             progress(f"round {round_ + 1}: trying {name}")
-            trial = library.transform(frozen_all, {name: None})
+            # the effect's parameter and the current free ones refit together: the current fit
+            # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
+            trial = library.transform(current, {name: _decade_up(effect)})
             fit = fit_lsq(Objective(fit_set, trial), max_iterations=config.screen_iterations)
             augmented = fit.params
             rss1 = 2.0 * fit.cost
