@@ -115,6 +115,15 @@ def _quiet_stdout() -> Iterator[None]:
         os.close(saved)
 
 
+def _feasible(params: ModelParameters, z: np.ndarray) -> bool:
+    """Whether unit coordinates ``z`` give a valid parameter set (bounds, mu_s >= mu_c)."""
+    try:
+        params.from_unit(z)
+    except InputError:
+        return False
+    return True
+
+
 def _unit_jacobian(params: ModelParameters) -> np.ndarray:
     """d x / d z of the free parameters (diagonal)."""
     out = []
@@ -188,8 +197,13 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
                       {"printLevel": "none", "error_on_fail": False})
     J = np.zeros((r.size, d))
     for it in range(max_iterations):
-        # forward differences, stepping inward at the upper bound
+        # forward differences, stepping inward at the upper bound and away from mu_s = mu_c
         h = np.where(z + fd_step <= 1.0, fd_step, -fd_step)
+        for j in range(d):
+            probe = z.copy()
+            probe[j] += h[j]
+            if not _feasible(params0, probe):
+                h[j] = -h[j]
         Zp = z[None, :] + np.diag(h)
         Rp = residuals(Zp)
         J = ((Rp - r[None, :]) / h[:, None]).T
