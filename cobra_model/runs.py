@@ -735,7 +735,8 @@ def _format_extra(values: np.ndarray) -> list[str]:
     return [str(x) for x in values.tolist()]
 
 
-def _json_default(value: Any) -> Any:
+def json_default(value: Any) -> Any:
+    """``json.dump`` fallback for the sidecar: arrays and numpy scalars as lists/numbers, paths as text."""
     if isinstance(value, np.ndarray):
         return value.tolist()
     if isinstance(value, np.generic):
@@ -765,7 +766,7 @@ def write_run(run: Run, path: str | Path, *, force: bool = False) -> Path:
             if target.exists():
                 raise FileExistsError(f"{target} already exists; pass force=True to overwrite it")
     try:
-        meta_text = json.dumps(dict(run.meta), indent=2, default=_json_default) + "\n"
+        meta_text = json.dumps(dict(run.meta), indent=2, default=json_default) + "\n"
     except (TypeError, ValueError) as exc:
         raise InputError(f"{sidecar}: run metadata is not JSON serialisable: {exc}") from exc
 

@@ -26,7 +26,7 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 from cobra_model.errors import InputError
-from cobra_model.runs import FORMAT, NUM_JOINTS, body_columns, joint_columns
+from cobra_model.runs import FORMAT, NUM_JOINTS, body_columns, joint_columns, json_default
 
 #: Head orientation columns (w, x, y, z), as in ``DATA_FORMAT.md``.
 HEAD_QUAT_COLUMNS = ("head_qw", "head_qx", "head_qy", "head_qz")
@@ -140,18 +140,8 @@ class IncrementalRunWriter:
         """Write the sidecar atomically (temporary file, fsync, rename)."""
         tmp = self.sidecar.with_name(self.sidecar.name + ".tmp")
         with tmp.open("w", encoding="utf-8") as fh:
-            json.dump(meta, fh, indent=2, default=_json_default)
+            json.dump(meta, fh, indent=2, default=json_default)
             fh.write("\n")
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, self.sidecar)
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    raise TypeError(f"{type(value).__name__} is not JSON serialisable")
