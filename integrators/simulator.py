@@ -225,27 +225,6 @@ class Simulator:
         return self.state(q)
 
     # -- stepping ---------------------------------------------------------------------------
-    def _measured(self, q: np.ndarray) -> np.ndarray:
-        """Encoder reading [rad] (n_joints,) at configuration q."""
-        out = np.empty(self.model.n_joints)
-        K.measured_angles(q, self.model.nq, self.act, out)
-        return out
-
-    def _physics(self, q: np.ndarray, v: np.ndarray, duty: np.ndarray, torque_on: np.ndarray,
-                 current: np.ndarray, t: float, tau: np.ndarray, q_out: np.ndarray,
-                 v_out: np.ndarray) -> None:
-        """One physics step from (q, v) into (q_out, v_out); raises on divergence."""
-        status = K.generalized_forces(q, v, duty, torque_on, self.act, self.scal, self.ground,
-                                      self.model.chain.floating, self._chain_i, self._chain_R, self._chain_f,
-                                      self._feat_i, self._feat_f, tau, current, self._X, self._F)
-        if status != K.STATUS_OK:
-            self._raise(status, t, q, v)
-        a = pin.aba(self._pin, self._data, q, v, tau)
-        K.integrate(q, v, a, self.settings.dt, self.model.chain.floating, q_out, v_out)
-        status = K.check_state(v_out, self.settings.max_speed)
-        if status != K.STATUS_OK:
-            self._raise(status, t, q, v_out)
-
     def _raise(self, status: int, t: float, q: np.ndarray, v: np.ndarray) -> None:
         if status == K.STATUS_PENETRATION:
             k = int(np.argmin(self._X[:, 2]))
@@ -271,11 +250,18 @@ class Simulator:
         """
         integ, prev_err, duty, current = (state.integ.copy(), state.prev_err.copy(),
                                           state.duty.copy(), state.current.copy())
-        if state.step % self.settings.substeps == 0:
-            K.control_tick(state.q, np.asarray(q_goal, dtype=float), self.act, self.scal, integ, prev_err, duty)
         on = np.ones(self.model.n_joints, dtype=np.bool_) if torque_on is None else np.asarray(torque_on, dtype=np.bool_)
-        q, v = np.empty(self.model.nq), np.empty(self.model.nv)
-        self._physics(state.q, state.v, duty, on, current, state.t, np.empty(self.model.nv), q, v)
+        q, v, tau = np.empty(self.model.nq), np.empty(self.model.nv), np.empty(self.model.nv)
+        status = K.pre_step(state.step % self.settings.substeps == 0, state.q, state.v,
+                            np.asarray(q_goal, dtype=float), integ, prev_err, duty, on, self.act, self.scal,
+                            self.ground, self.model.chain.floating, self._chain_i, self._chain_R, self._chain_f,
+                            self._feat_i, self._feat_f, tau, current, self._X, self._F)
+        if status:
+            self._raise(status, state.t, state.q, state.v)
+        a = pin.aba(self._pin, self._data, state.q, state.v, tau)
+        status = K.post_step(state.q, state.v, a, self.scal, self.model.chain.floating, q, v)
+        if status:
+            self._raise(status, state.t, state.q, v)
         return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1)
 
     def motor_current(self, state: SimState) -> np.ndarray:
