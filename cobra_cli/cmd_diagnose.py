@@ -7,7 +7,7 @@ from pathlib import Path
 
 from cobra_cli.common import check_writable, load_params
 from cobra_model.errors import InputError
-from sysid.diagnose import DiagnoseConfig, diagnose
+from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
 from sysid.runsets import expand, read_runs
 
 OUTPUTS = ("report.html", "diagnosis.json", "augmented_params.json")
@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
     doc = result.to_json()
     doc["augmented_params"] = str(args.out / "augmented_params.json")
     (args.out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
-    _write_report(result, holdout, args.out)
+    _write_report(result, args.out)
     if args.json:
         print(json.dumps(doc, indent=2, default=float))
         return 0
@@ -86,9 +86,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _write_report(result, holdout, out: Path) -> None:
+def _write_report(result: Diagnosis, out: Path) -> None:
     from sysid import plots
-    from sysid.report import HtmlReport, evaluate_held_out, held_out_figures
+    from sysid.report import HtmlReport, held_out_figures
 
     page = HtmlReport("cobra diagnose")
     page.heading("Verdict")
@@ -107,6 +107,5 @@ def _write_report(result, holdout, out: Path) -> None:
     fit = result.fits[-1]
     page.table(["name", "unit", "value", "95% low", "95% high", "note"],
                [[r.name, r.unit, r.value, r.ci_low, r.ci_high, r.reason] for r in fit.report])
-    held = evaluate_held_out(holdout, result.params_before, result.params_after)
-    held_out_figures(held, out, ("fitted, no effect", "with effect"), page)
+    held_out_figures(result.held, out, ("fitted, no effect", "with effect"), page)
     page.write(out / "report.html")

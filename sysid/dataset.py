@@ -26,6 +26,7 @@ from typing import Callable
 
 import numpy as np
 
+from cobra_model.errors import InputError
 from cobra_model.gait import PAPER_FREQUENCIES_HZ, SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters, Parameter
@@ -171,10 +172,20 @@ def generate(out_dir: Path, *, force: bool = False, progress: Callable[[str], No
 
 
 def load_manifest(path: Path) -> tuple[list[Path], list[Path]]:
-    """(train, validation) run paths of a dataset manifest."""
-    data = json.loads(Path(path).read_text())
-    base = Path(path).parent
-    return [base / n for n in data["train"]], [base / n for n in data["validation"]]
+    """(train, validation) run paths of a dataset manifest (paths relative to the manifest).
+
+    Raises:
+        InputError: naming the file, if it is not JSON or has no ``"train"`` list.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise InputError(f"{path}: not valid JSON ({exc})") from None
+    if not isinstance(data, dict) or not isinstance(data.get("train"), list):
+        raise InputError(f"{path}: a dataset manifest needs \"train\" (and \"validation\") lists of run files")
+    base = path.parent
+    return [base / n for n in data["train"]], [base / n for n in data.get("validation", [])]
 
 
 def main(argv: list[str] | None = None) -> int:

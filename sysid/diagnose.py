@@ -29,8 +29,8 @@ from cobra_model.runs import Run
 from integrators.runs import simulate_like
 from sysid.effects import Effect, EffectLibrary
 from sysid.lsq import FitResult, fit_lsq
-from sysid.metrics import compare_runs
 from sysid.objective import Objective
+from sysid.report import HeldOut, gap_summary, pair_held_out
 from sysid.signature import Signature, localise
 
 
@@ -83,6 +83,7 @@ class Diagnosis:
     rounds: list[list[Candidate]] = field(default_factory=list)
     signature: Signature | None = None
     signature_after: Signature | None = None
+    held: list[HeldOut] = field(default_factory=list)
     gap_before: dict = field(default_factory=dict)
     gap_after: dict = field(default_factory=dict)
     params_before: ModelParameters | None = None
@@ -139,19 +140,6 @@ def _spread(runs: Sequence[Run], n: int) -> list[Run]:
     return out
 
 
-def held_out_gap(runs: Sequence[Run], params: ModelParameters) -> tuple[dict, list[tuple[Run, Run]]]:
-    """``cobra compare`` metrics per held-out run and their mean, and the (measured, simulated) pairs."""
-    pairs = [(r, simulate_like(r, params=params)) for r in runs]
-    per_run = {}
-    for m, s in pairs:
-        name = str(m.source.stem) if m.source else f"run{len(per_run)}"
-        per_run[name] = compare_runs(m, s).to_json_dict()
-    keys = ("head_final_error_m", "head_mean_error_m")
-    mean = {k: float(np.mean([g[k] for g in per_run.values()])) for k in keys}
-    mean["joint_rmse_rad"] = float(np.mean([g["joint_rmse_rad"]["mean"] for g in per_run.values()]))
-    return {"mean": mean, "runs": per_run}, pairs
-
-
 def _cost(obj: Objective, params: ModelParameters) -> tuple[float, int]:
     r = obj.residuals(params.as_vector())[0]
     return float(r @ r), r.size
@@ -171,10 +159,10 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     result.fits.append(base)
     current = base.params
     result.params_before = current
-    result.gap_before, pairs = held_out_gap(holdout, current)
+    sims_before = [simulate_like(r, params=current) for r in holdout]
     progress("localising the disagreement")
     train_pairs = [(r, simulate_like(r, params=current)) for r in fit_set]
-    result.signature = localise(train_pairs + pairs)
+    result.signature = localise(train_pairs + list(zip(holdout, sims_before)))
     remaining = list(library.names)
     for round_ in range(config.max_effects):
         train_obj = Objective(fit_set, current)
@@ -223,8 +211,10 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         })
         remaining.remove(best.name)
     result.params_after = current
-    result.gap_after, pairs_after = held_out_gap(holdout, current)
-    result.signature_after = localise(pairs_after)
+    sims_after = [simulate_like(r, params=current) for r in holdout]
+    result.held = pair_held_out(holdout, sims_before, sims_after)
+    result.gap_before, result.gap_after = gap_summary(result.held, "before"), gap_summary(result.held, "after")
+    result.signature_after = localise(list(zip(holdout, sims_after)))
     if result.effects:
         names = " and ".join(e["name"] for e in result.effects)
         result.verdict = (f"missing effect{'s' if len(result.effects) > 1 else ''}: {names}; held-out final head "

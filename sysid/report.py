@@ -10,6 +10,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
 
+import numpy as np
+
 from cobra_model.runs import Run
 from integrators.runs import simulate_like
 from cobra_model.parameters import ModelParameters
@@ -76,15 +78,27 @@ class HeldOut:
 
 def evaluate_held_out(runs: Sequence[Run], before: ModelParameters, after: ModelParameters) -> list[HeldOut]:
     """Simulate each held-out run with both parameter sets and compare with the measurement."""
+    return pair_held_out(runs, [simulate_like(r, params=before) for r in runs],
+                         [simulate_like(r, params=after) for r in runs])
+
+
+def pair_held_out(runs: Sequence[Run], before: Sequence[Run], after: Sequence[Run]) -> list[HeldOut]:
+    """Held-out runs with their simulations before and after, compared with the measurement."""
     out = []
-    for run in runs:
-        sim_b = simulate_like(run, params=before)
-        sim_a = simulate_like(run, params=after)
+    for run, sim_b, sim_a in zip(runs, before, after):
         gait = run.meta.get("gait", {}) if isinstance(run.meta, dict) else {}
         name = Path(str(run.source)).stem if run.source else "run"
         out.append(HeldOut(name, float(gait.get("frequency_hz", float("nan"))), run, sim_b, sim_a,
                            compare_runs(run, sim_b), compare_runs(run, sim_a)))
     return out
+
+
+def gap_summary(held: Sequence[HeldOut], which: str) -> dict:
+    """``cobra compare`` metrics of each held-out run (``which``: "before" or "after") and their mean."""
+    per_run = {h.name: getattr(h, f"gap_{which}").to_json_dict() for h in held}
+    mean = {k: float(np.mean([g[k] for g in per_run.values()])) for k in ("head_final_error_m", "head_mean_error_m")}
+    mean["joint_rmse_rad"] = float(np.mean([g["joint_rmse_rad"]["mean"] for g in per_run.values()]))
+    return {"mean": mean, "runs": per_run}
 
 
 def held_out_figures(held: Sequence[HeldOut], out_dir: Path, labels: tuple[str, str], report: HtmlReport) -> None:

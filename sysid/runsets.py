@@ -1,12 +1,11 @@
 """Command-line run sets: run files, or a dataset manifest giving its train/validation split."""
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Sequence
 
-from cobra_model.errors import InputError
 from cobra_model.runs import Run, read_run
+from sysid.dataset import load_manifest
 
 
 def expand(paths: Sequence[str]) -> tuple[list[Path], list[Path]]:
@@ -16,14 +15,9 @@ def expand(paths: Sequence[str]) -> tuple[list[Path], list[Path]]:
     for item in paths:
         p = Path(item)
         if p.suffix == ".json" and p.is_file():
-            try:
-                data = json.loads(p.read_text())
-            except json.JSONDecodeError as exc:
-                raise InputError(f"{p}: not valid JSON ({exc})") from None
-            if not isinstance(data, dict) or "train" not in data:
-                raise InputError(f"{p}: a dataset manifest needs \"train\" (and \"validation\") lists of run files")
-            train += [p.parent / n for n in data["train"]]
-            validation += [p.parent / n for n in data.get("validation", [])]
+            t, v = load_manifest(p)
+            train += t
+            validation += v
         else:
             train.append(p)
     return train, validation
