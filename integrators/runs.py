@@ -105,12 +105,17 @@ def start_state(sim: Simulator, run: Run) -> SimState:
     return SimState(float(run.t[0]), st.q, st.v, st.integ, st.prev_err, st.duty, st.current, 0)
 
 
+def command_ticks(run: Run, control_dt: float) -> np.ndarray:
+    """The run's ``q_ref`` (n_ticks, 11) [rad] linearly interpolated onto control ticks from its first time."""
+    t0, t1 = float(run.t[0]), float(run.t[-1])
+    ticks = t0 + np.arange(int(np.floor((t1 - t0) / control_dt + 1e-9)) + 1) * control_dt
+    return np.column_stack([np.interp(ticks, run.t, run.q_ref[:, j]) for j in range(run.q_ref.shape[1])])
+
+
 def rollout_like(sim: Simulator, run: Run, *, record_every: int | None = None,
                  progress: Callable[[float], None] | None = None) -> Trajectory:
     """Roll the simulator out over the run's span with its commands (interpolated onto the ticks)."""
     t0, t1 = float(run.t[0]), float(run.t[-1])
-    dt = sim.settings.control_dt
-    ticks = t0 + np.arange(int(np.floor((t1 - t0) / dt + 1e-9)) + 1) * dt
-    table = np.column_stack([np.interp(ticks, run.t, run.q_ref[:, j]) for j in range(run.q_ref.shape[1])])
+    table = command_ticks(run, sim.settings.control_dt)
     every = record_every or max(1, int(round(max(run.dt_median, sim.settings.dt) / sim.settings.dt)))
     return sim.rollout(start_state(sim, run), table, t1 - t0, record_every=every, progress=progress)

@@ -31,7 +31,7 @@ from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run, interpolate_rows
 from integrators.batch import BatchSimulator
-from integrators.runs import InitialPose
+from integrators.runs import InitialPose, command_ticks
 from integrators.simulator import SimSettings, delay_commands
 from sysid.executor import Executor, LocalExecutor
 
@@ -76,9 +76,7 @@ class RunTarget:
     @classmethod
     def of_run(cls, run: Run, settings: SimSettings, sample_hz: float) -> "RunTarget":
         t0, t1 = float(run.t[0]), float(run.t[-1])
-        dt = settings.control_dt
-        ticks_t = t0 + np.arange(int(np.floor((t1 - t0) / dt + 1e-9)) + 1) * dt
-        ticks = np.column_stack([np.interp(ticks_t, run.t, run.q_ref[:, j]) for j in range(run.q_ref.shape[1])])
+        ticks = command_ticks(run, settings.control_dt)
         ts = np.minimum(np.arange(0.0, t1 - t0 + 1e-9, 1.0 / sample_hz), t1 - t0)
         head = interpolate_rows(t0 + ts, run.t, run.head_pos[:, :2], max_gap_samples=2)
         q = interpolate_rows(t0 + ts, run.t, run.q)
