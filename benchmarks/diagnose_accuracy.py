@@ -1,9 +1,13 @@
-"""Discrepancy workflow accuracy: hidden effect vs named effect, gap before/after, wall time.
+"""Discrepancy workflow accuracy: hidden effect(s) vs named effect(s), gap before/after, wall time.
 
-For each effect of the library (and for no effect), data are simulated with the effect at a
-realistic magnitude plus parameter error, measured like the reference dataset (quantised
-encoders, mocap noise and dropouts), and diagnosed with the nominal model. Also diagnoses the
-shipped reference dataset. Run: ``.venv/bin/python benchmarks/diagnose_accuracy.py [--only NAME]``.
+For each effect of the library, for two pairs of effects hidden together and for no effect,
+data are simulated with the effect(s) at a realistic magnitude plus parameter error, measured
+like the reference dataset (quantised encoders, mocap noise and dropouts, jittered log), and
+diagnosed with the nominal model (``mu_c``, ``joint_damping`` and ``motor_km`` free and 9-60 %
+off). Also diagnoses the shipped reference dataset. ``--detection-limit`` instead halves each
+effect's magnitude until the workflow no longer names it first (one round per diagnosis), and
+prints the smallest magnitude named. Run:
+``.venv/bin/python benchmarks/diagnose_accuracy.py [--cases NAME,...] [--detection-limit]``.
 """
 from __future__ import annotations
 
@@ -15,20 +19,25 @@ import numpy as np
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.dataset import DATA_DIR, RunPlan, load_manifest, record
-from sysid.diagnose import DiagnoseConfig, diagnose
+from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
 from sysid.effects import EffectLibrary
 from sysid.runsets import read_runs
 
-#: Realistic magnitudes of each hidden effect.
+#: Realistic magnitudes of each hidden effect (SI units of its main parameter).
 MAGNITUDES = {"joint_coulomb_friction": 0.3, "backlash": 0.02, "actuator_delay": 0.04, "torque_saturation": 2.5,
               "anisotropic_ground_friction": 2.0, "encoder_offset": 0.03, "link_mass_error": 0.8}
+#: Effects hidden together.
+PAIRS = ("joint_coulomb_friction+anisotropic_ground_friction", "actuator_delay+link_mass_error")
 FREE = ["mu_c", "joint_damping", "motor_km"]
+#: Magnitude of an effect is "off" at this value (inactive); halving moves towards it.
+LIBRARY = EffectLibrary()
 
 
-def make_data(effect: str | None, seed: int = 3):
+def make_data(effects: dict[str, float], seed: int = 3):
+    """6 training and 3 held-out runs of a robot with parameter error and ``effects`` hidden."""
     truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
-    if effect:
-        truth = EffectLibrary().transform(truth, {effect: MAGNITUDES[effect]}, frozen=True)
+    if effects:
+        truth = LIBRARY.transform(truth, effects, frozen=True)
     model = CobraModel.load()
     sim = Simulator(model, truth)
     rng = np.random.default_rng(seed)
@@ -38,28 +47,78 @@ def make_data(effect: str | None, seed: int = 3):
     return runs[:6], runs[6:]
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--only", default=None, help="one effect name, 'none' or 'reference'")
-    args = parser.parse_args()
-    cases = ["none", *MAGNITUDES, "reference"] if args.only is None else [args.only]
-    print("| hidden effect | magnitude | named effect(s) | held-out final head error before -> after [m] | wall [s] |")
+def run_case(effects: dict[str, float], max_effects: int) -> tuple[Diagnosis, float]:
+    train, hold = make_data(effects)
+    t0 = time.perf_counter()
+    d = diagnose(train, hold, params=ModelParameters.nominal().with_frozen(free=FREE),
+                 config=DiagnoseConfig(max_effects=max_effects))
+    return d, time.perf_counter() - t0
+
+
+def scaled(name: str, factor: float) -> float:
+    """The realistic magnitude of ``name`` moved ``factor`` of the way from its inactive value."""
+    inactive = LIBRARY[name].parameter.value
+    return inactive + factor * (MAGNITUDES[name] - inactive)
+
+
+def accuracy(cases: list[str]) -> None:
+    print("| hidden effect(s) | magnitude | named effect(s) | held-out final head error before -> after [m] "
+          "| wall [s] |")
     print("|---|---:|---|---|---:|")
     for case in cases:
         if case == "reference":
             tr, va = load_manifest(DATA_DIR / "manifest.json")
-            train, hold = read_runs(tr), read_runs(va)
-            start, mag = ModelParameters.nominal(), "(hidden)"
+            t0 = time.perf_counter()
+            d = diagnose(read_runs(tr), read_runs(va), params=ModelParameters.nominal(),
+                         config=DiagnoseConfig(max_effects=2))
+            wall, mag = time.perf_counter() - t0, "(hidden)"
         else:
-            train, hold = make_data(None if case == "none" else case)
-            start = ModelParameters.nominal().with_frozen(free=FREE)
-            mag = "-" if case == "none" else f"{MAGNITUDES[case]:g}"
-        t0 = time.perf_counter()
-        d = diagnose(train, hold, params=start, config=DiagnoseConfig(max_effects=2))
-        wall = time.perf_counter() - t0
+            hidden = {} if case == "none" else {name: MAGNITUDES[name] for name in case.split("+")}
+            d, wall = run_case(hidden, 2)
+            mag = ", ".join(f"{v:g}" for v in hidden.values()) or "-"
         named = ", ".join(e["name"] for e in d.effects) or "none"
         b, a = d.gap_before["mean"]["head_final_error_m"], d.gap_after["mean"]["head_final_error_m"]
-        print(f"| {case} | {mag} | {named} | {b:.4f} -> {a:.4f} | {wall:.0f} |", flush=True)
+        print(f"| {case.replace('+', ' + ')} | {mag} | {named} | {b:.4f} -> {a:.4f} | {wall:.0f} |", flush=True)
+
+
+def detection_limit(names: list[str], halvings: int) -> None:
+    print("| effect | magnitude | named first | held-out cost reduction | held-out final head error "
+          "before -> after [m] |")
+    print("|---|---:|---|---:|---|")
+    for name in names:
+        for k in range(1, halvings + 1):
+            value = scaled(name, 0.5 ** k)
+            d, _ = run_case({name: value}, 1)
+            first = d.rounds[0][0] if d.rounds and d.rounds[0] else None
+            named = bool(d.effects) and d.effects[0]["name"] == name
+            b, a = d.gap_before["mean"]["head_final_error_m"], d.gap_after["mean"]["head_final_error_m"]
+            print(f"| {name} | {value:.4g} | {'yes' if named else 'no (' + (d.effects[0]['name'] if d.effects else 'none') + ')'}"
+                  f" | {100 * first.held_out_improvement:.0f} % ({first.name}) | {b:.4f} -> {a:.4f} |", flush=True)
+            if not named:
+                break
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default=None,
+                        help="comma-separated: effect names, NAME+NAME pairs, 'none', 'reference' (default: all)")
+    parser.add_argument("--detection-limit", action="store_true",
+                        help="halve each effect's magnitude until it is no longer named first")
+    parser.add_argument("--halvings", type=int, default=4, help="most halvings per effect (--detection-limit)")
+    args = parser.parse_args()
+    if args.detection_limit:
+        names = args.cases.split(",") if args.cases else list(MAGNITUDES)
+        for name in names:
+            LIBRARY[name]
+        detection_limit(names, args.halvings)
+        return
+    cases = args.cases.split(",") if args.cases else ["none", *MAGNITUDES, *PAIRS, "reference"]
+    for case in cases:
+        if case not in ("none", "reference"):
+            for name in case.split("+"):
+                if name not in MAGNITUDES:
+                    parser.error(f"--cases: unknown case {name!r}; known: none, reference, {', '.join(MAGNITUDES)}")
+    accuracy(cases)
 
 
 if __name__ == "__main__":

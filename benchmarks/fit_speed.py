@@ -2,8 +2,9 @@
 
 Prints, in one run: objective evaluations per second one at a time vs batched; for each method
 the wall time, the objective evaluations it used and the held-out final head error per gait
-before (nominal) and after. Run: ``.venv/bin/python benchmarks/fit_speed.py [--lsq-iterations N]
-[--ppo-timesteps N]``.
+before (nominal) and after; and when PPO's best parameters first reached the least-squares
+held-out error (summed over the held-out runs), if they did. Run:
+``.venv/bin/python benchmarks/fit_speed.py [--lsq-iterations N] [--ppo-timesteps N]``.
 """
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import time
 import numpy as np
 
 from cobra_model import ModelParameters
+from held_out import final_head_errors, time_to_reach
 from sysid.dataset import DATA_DIR, load_manifest
 from sysid.lsq import fit_lsq
 from sysid.objective import Objective
@@ -32,8 +34,8 @@ def evals_per_second(objective: Objective, k: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--lsq-iterations", type=int, default=8)
-    parser.add_argument("--ppo-timesteps", type=int, default=256)
+    parser.add_argument("--lsq-iterations", type=int, default=8, help="per horizon stage")
+    parser.add_argument("--ppo-timesteps", type=int, default=1024)
     args = parser.parse_args()
     train_paths, val_paths = load_manifest(DATA_DIR / "manifest.json")
     train, validation = read_runs(train_paths), read_runs(val_paths)
@@ -62,6 +64,11 @@ def main() -> None:
         cells = " | ".join(f"{h.gap_before.to_json_dict()['head_final_error_m']:.3f} -> "
                            f"{h.gap_after.to_json_dict()['head_final_error_m']:.3f}" for h in held[name])
         print(f"| {name} | {wall:.0f} | {res.evaluations} | {res.status.value} | {cells} |")
+    target = final_head_errors(validation, lsq.params).sum()
+    reach = time_to_reach(validation, ppo.extra["best_history"], target)
+    print(f"\nPPO reached the least-squares held-out error (summed final head error {target:.4f} m): "
+          + (f"after {reach[0]:.0f} s ({reach[1]} timesteps)" if reach else
+             f"not within {rows[1][1]:.0f} s ({ppo.extra['timesteps']} timesteps)"))
 
 
 if __name__ == "__main__":

@@ -100,8 +100,9 @@ def _write_report(result: Diagnosis, out: Path) -> None:
                 "residual signature before and after")
     for i, round_ in enumerate(result.rounds, start=1):
         page.heading(f"Candidates, round {i}")
-        page.table(["effect", "fitted value", "unit", "held-out cost reduction", "dBIC", "signature match"],
-                   [[c.name, c.value, c.unit, c.held_out_improvement, c.delta_bic, c.signature_match]
+        page.table(["effect", "fitted value", "unit", "held-out cost reduction", "held-out runs improved", "dBIC",
+                    "signature match"],
+                   [[c.name, c.value, c.unit, c.held_out_improvement, c.runs_improved, c.delta_bic, c.signature_match]
                     for c in round_])
     page.heading("Augmented model")
     fit = result.fits[-1]

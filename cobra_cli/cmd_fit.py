@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
 
@@ -102,7 +103,8 @@ def run(args: argparse.Namespace) -> int:
                   "initial_cost": result.initial_cost, "evaluations": result.evaluations,
                   "seconds": result.seconds, "train_runs": [str(p) for p in train_paths],
                   "intervals": {r.name: [r.ci_low, r.ci_high] for r in result.report},
-                  "identifiable": {r.name: r.reason for r in result.report}}
+                  "identifiable": {r.name: r.reason for r in result.report},
+                  "log": [dataclasses.asdict(entry) for entry in result.log]}
     out.write_text(json.dumps(doc, indent=2, default=float) + "\n")
     print(f"{result.status.value} after {result.evaluations} evaluations in {result.seconds:.1f} s; "
           f"cost {result.initial_cost:.4g} -> {result.cost:.4g}")
@@ -127,6 +129,12 @@ def run(args: argparse.Namespace) -> int:
                          "yes" if r.at_bound else "", r.reason] for r in result.report])
             page.paragraph(f"{result.evaluations} objective evaluations, {result.seconds:.1f} s, cost "
                            f"{result.initial_cost:.4g} -> {result.cost:.4g}.")
+            if result.log:
+                page.heading("Iteration log")
+                page.table(["iteration", "horizon [s]", "cost", "trial cost", "accepted", "damping", "evaluations",
+                            "seconds"],
+                           [[e.iteration, e.horizon_s, e.cost, e.trial_cost, "yes" if e.accepted else "", e.damping,
+                             e.evaluations, e.seconds] for e in result.log])
             if result.method == "ppo" and (report_dir / "reward_curve.png").exists():
                 page.figure(report_dir / "reward_curve.png", "PPO reward curve")
             held_out_figures(held, report_dir, ("before", "after"), page)

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from cobra_model.design import SERVO_GEAR_RATIO
+from cobra_model.errors import InputError
 from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters
 
 
@@ -27,17 +28,41 @@ def _mujoco():
     return mujoco
 
 
+#: Ground-contact geometries of :class:`TwinOptions` (see its ``contact``).
+CONTACT_MODES: tuple[str, ...] = ("cylinder", "capsule_pairs")
+
+
 @dataclass(frozen=True)
 class TwinOptions:
     """How the MuJoCo twin is built.
 
     Attributes:
-        ground: add a ground plane with friction ``friction`` (sliding, torsional, rolling).
+        ground: add a ground plane (the world's z = 0 plane, normal +z).
         actuators: add position servos on every joint (stiffness/damping of the nominal
-            Dynamixel loop linearised: ``kp = P/128 * 4096/(2 pi) / 885 * V * rKm / R``).
+            Dynamixel loop linearised: ``kp = P/128 * 4096/(2 pi) / 885 * V * rKm / R``). The
+            URDF's joint effort limit (the stall torque, 9.9 N m) bounds each joint's actuator
+            torque in any case: MuJoCo imports it as the joint's ``actuatorfrcrange``.
         armature, damping, frictionloss: joint properties [kg m^2, N m s/rad, N m].
-        forcerange: actuator torque limit [N m] (None: unlimited).
-        timestep: [s]. condim: 3 (isotropic) or 4/6; friction anisotropy uses ``friction``.
+        forcerange: actuator torque limit [N m] (None: only the URDF's effort limit).
+        friction: (sliding [1], torsional [m], rolling [m]) friction coefficients of every geom
+            and of the ground; only sliding acts with MuJoCo's default contact dimension 3.
+        contact: ``"cylinder"``: the URDF's collision cylinders collide with the ground and with
+            each other through MuJoCo's dynamic contacts, whose tangent frame is derived from the
+            contact normal alone (isotropic friction only). ``"capsule_pairs"``: each collision
+            cylinder becomes a capsule of the same radius and segment (its two ground contacts
+            when lying flat are the cylinder's two lowest rim points; tilted by ``a`` they move
+            ``r sin a`` outwards and ``r (1 - cos a)`` down), self-collision is off (as in our
+            simulator) and each capsule touches the ground through an explicit contact
+            ``<pair>`` whose tangent frame is body-aligned: MuJoCo's plane-capsule collision
+            sets the first tangent to the capsule axis, orthogonalised to the normal, i.e. the
+            module's x axis projected on the ground, and the second to ``z x`` that -- the
+            frame of ``integrators.kernels.ground_forces``.
+        lateral_friction_ratio: sideways / along-body sliding friction [1]; the pair friction
+            is ``(mu, ratio * mu)`` on those axes. Needs ``contact="capsule_pairs"`` unless 1.
+        timestep: [s].
+
+    Raises:
+        InputError: naming the option that is out of range or inconsistent.
     """
 
     ground: bool = True
@@ -47,7 +72,27 @@ class TwinOptions:
     frictionloss: float = 0.0
     forcerange: float | None = None
     friction: tuple[float, float, float] = (0.3, 0.005, 0.0001)
+    contact: str = "cylinder"
+    lateral_friction_ratio: float = 1.0
     timestep: float = 1e-3
+
+    def __post_init__(self) -> None:
+        for name in ("armature", "damping", "frictionloss"):
+            if not getattr(self, name) >= 0:
+                raise InputError(f"TwinOptions.{name} must be >= 0, got {getattr(self, name)}")
+        if self.forcerange is not None and not self.forcerange > 0:
+            raise InputError(f"TwinOptions.forcerange must be > 0 N m or None, got {self.forcerange}")
+        if len(self.friction) != 3 or not all(f >= 0 for f in self.friction):
+            raise InputError(f"TwinOptions.friction must be 3 coefficients >= 0, got {self.friction}")
+        if self.contact not in CONTACT_MODES:
+            raise InputError(f"TwinOptions.contact must be one of {CONTACT_MODES}, got {self.contact!r}")
+        if not self.lateral_friction_ratio > 0:
+            raise InputError(f"TwinOptions.lateral_friction_ratio must be > 0, got {self.lateral_friction_ratio}")
+        if self.lateral_friction_ratio != 1.0 and self.contact != "capsule_pairs":
+            raise InputError("TwinOptions.lateral_friction_ratio != 1 needs contact='capsule_pairs' "
+                             "(MuJoCo's dynamic contacts have no body-aligned tangent frame)")
+        if not self.timestep > 0:
+            raise InputError(f"TwinOptions.timestep must be > 0 s, got {self.timestep}")
 
 
 def servo_stiffness_damping(params: ModelParameters, p_gain: int = 800) -> tuple[float, float]:
@@ -59,7 +104,11 @@ def servo_stiffness_damping(params: ModelParameters, p_gain: int = 800) -> tuple
 
 
 def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelParameters | None = None):
-    """Compile the URDF into an ``mujoco.MjModel`` with a free joint at the root body."""
+    """Compile the URDF into an ``mujoco.MjModel`` with a free joint at the root body.
+
+    ``params`` gives the servo gains (``motor_km``, see :func:`servo_stiffness_damping`;
+    default nominal); every other physical property comes from the URDF and ``options``.
+    """
     mujoco = _mujoco()
     spec = mujoco.MjSpec.from_file(str(urdf))
     spec.option.timestep = options.timestep
@@ -75,6 +124,8 @@ def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelP
     if options.ground:
         spec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
                                 friction=options.friction)
+    if options.contact == "capsule_pairs":
+        _capsule_ground_pairs(mujoco, spec, options)
     if options.actuators:
         kp, kv = servo_stiffness_damping(params or ModelParameters.nominal())
         for j in spec.joints:
@@ -86,6 +137,23 @@ def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelP
                 a.forcelimited = True
                 a.forcerange = [-options.forcerange, options.forcerange]
     return spec.compile()
+
+
+def _capsule_ground_pairs(mujoco, spec, options: TwinOptions) -> None:
+    """Turn the collision cylinders into capsules touching the ground only through body-aligned pairs."""
+    mu = options.friction[0]
+    friction = [mu, options.lateral_friction_ratio * mu, options.friction[1], options.friction[2], options.friction[2]]
+    for body in spec.bodies:
+        for k, g in enumerate(body.geoms):
+            if g.type != mujoco.mjtGeom.mjGEOM_CYLINDER:
+                continue
+            g.type = mujoco.mjtGeom.mjGEOM_CAPSULE  # same size semantics: radius, half-length
+            g.contype, g.conaffinity = 0, 0
+            if not g.name:
+                g.name = f"{body.name}_collision_{k}"
+            if options.ground:
+                # geom1 = the plane: MuJoCo's plane-capsule collision then aligns the frame with the capsule
+                spec.add_pair(geomname1="ground", geomname2=g.name, condim=3, friction=friction)
 
 
 def pin_to_mj(q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -208,6 +208,11 @@ class Simulator:
         return SimState(t, np.asarray(q, dtype=float).copy(), v, np.zeros(n), np.zeros(n),
                         np.zeros(n), np.zeros(n))
 
+    def joints_reading(self, reading: np.ndarray) -> np.ndarray:
+        """The joint angles [rad] whose encoders read ``reading`` [rad] (``reading - encoder_offset``):
+        where a measured run really started."""
+        return np.asarray(reading, dtype=float) - self.act[:, K.A_ENC_OFFSET]
+
     def rest_state(self, q_joints: np.ndarray | None = None, head_xy: tuple[float, float] = (0.0, 0.0),
                    heading_rad: float = 0.0, base_quat_wxyz: np.ndarray | None = None) -> SimState:
         """At rest in joint pose ``q_joints`` with the lowest contact point touching the ground.

@@ -14,7 +14,8 @@ discrepancy workflow's job). Measurement is realistic:
   headings and positions, each at least three gait cycles long; one run per gait held out for
   validation (``manifest.json``).
 
-Regenerate with ``python -m sysid.dataset`` (``--check`` compares with the shipped files).
+Regenerate with ``python -m sysid.dataset --out DIR`` (``--force`` to overwrite; ``tests/test_dataset.py``
+checks that the shipped files are what the generator writes).
 """
 from __future__ import annotations
 
@@ -100,38 +101,73 @@ def _dropouts(rng, n: int) -> np.ndarray:
     return lost
 
 
-def record(sim: Simulator, run_plan: RunPlan, rng: np.random.Generator, model: CobraModel) -> Run:
-    """Simulate one run on the ground-truth robot and 'measure' it."""
+#: Spacing [s] of the configurations whose tracked-body positions are computed (then interpolated).
+BODY_SAMPLE_S = 0.02
+#: Note in a stand-in run's sidecar.
+REFERENCE_NOTE = f"reference dataset stand-in run (seed {SEED})"
+
+
+def measure(t: np.ndarray, q_pin: np.ndarray, q_joint_meas: np.ndarray, run_plan: RunPlan,
+            rng: np.random.Generator, model: CobraModel, *, source: str = "hardware",
+            note: str = REFERENCE_NOTE) -> Run:
+    """'Measure' a true trajectory the way the reference dataset was measured (module docstring).
+
+    Args:
+        t: (N,) sample times [s] of the true trajectory, from 0, evenly spaced (a few ms apart)
+            and spanning ``run_plan.duration_s``.
+        q_pin: (N, nq) configurations in Pinocchio's convention (head position [m] and
+            orientation quaternion (x, y, z, w) in the world frame, then the 11 joint angles [rad]).
+        q_joint_meas: (N, 11) what the encoders would read without quantisation [rad].
+        run_plan: the run (gait frequency for the logged commands, initial heading for the sidecar).
+        rng: the noise source; draws in a fixed order (timing jitter, head noise, orientation
+            noise, head dropouts, then per tracked body its noise and dropouts).
+        model: places the tracked bodies (``model.body_centres``).
+        source, note: the sidecar's ``"source"`` and the first words of its note.
+
+    Returns:
+        The run on the 50 Hz jittered joint-log times: commands ``q_ref`` (the gait's), quantised
+        encoders ``q``, head pose and :data:`~integrators.runs.TRACKED_BODIES` with mocap noise
+        and dropouts (NaN).
+
+    Raises:
+        InputError: naming the argument whose shape does not fit ``t``.
+    """
+    t, q_pin, q_joint_meas = (np.asarray(a, dtype=float) for a in (t, q_pin, q_joint_meas))
+    if t.ndim != 1 or len(t) < 2:
+        raise InputError(f"measure: t must be a 1-D array of at least 2 times, got shape {t.shape}")
+    n = len(t)
+    if q_pin.shape != (n, model.nq):
+        raise InputError(f"measure: q_pin must be ({n}, {model.nq}) to match t, got {q_pin.shape}")
+    if q_joint_meas.shape != (n, model.n_joints):
+        raise InputError(f"measure: q_joint_meas must be ({n}, {model.n_joints}) to match t, got {q_joint_meas.shape}")
     gait = SidewindingGait(run_plan.freq_hz)
-    state = sim.rest_state(gait.q_ref(0.0), head_xy=run_plan.head_xy, heading_rad=run_plan.heading_rad)
-    traj = sim.rollout(state, gait.q_ref, run_plan.duration_s, record_every=2)
     # joint log: 50 Hz with jitter, quantised encoders, the goals that were sent
     n_j = int(run_plan.duration_s * JOINT_RATE_HZ)
     t_j = np.arange(n_j) / JOINT_RATE_HZ + rng.uniform(-TIMING_JITTER_S, TIMING_JITTER_S, n_j)
     t_j[0] = 0.0
     t_j = np.round(t_j, 6)
-    q_true = interpolate_rows(t_j, traj.t, traj.q_meas)
+    q_true = interpolate_rows(t_j, t, q_joint_meas)
     count = 2 * np.pi / ENCODER_COUNTS
     q_meas = np.round(q_true / count) * count
     q_ref = gait.q_ref(t_j)
     # motion capture: 120 Hz, noise, dropouts, merged onto the joint log's times
     t_m = np.arange(int(run_plan.duration_s * MOCAP_RATE_HZ) + 1) / MOCAP_RATE_HZ
-    head = interpolate_rows(t_m, traj.t, traj.q[:, 0:3]) + rng.normal(0, MOCAP_NOISE_M, (len(t_m), 3))
-    quat = interpolate_quaternions(t_m, traj.t, np.column_stack([traj.q[:, 6], traj.q[:, 3:6]]))
+    head = interpolate_rows(t_m, t, q_pin[:, 0:3]) + rng.normal(0, MOCAP_NOISE_M, (len(t_m), 3))
+    quat = interpolate_quaternions(t_m, t, np.column_stack([q_pin[:, 6], q_pin[:, 3:6]]))
     quat = _noisy_quats(rng, quat)
     lost = _dropouts(rng, len(t_m))
     head[lost] = np.nan
     quat[lost] = np.nan
     bodies = {}
-    coarse = traj.q[::10]
+    every = max(1, int(round(BODY_SAMPLE_S / (t[1] - t[0]))))
     for name in TRACKED_BODIES:
-        pos = np.array([model.body_centres(qi)[name] for qi in coarse])
-        pos = interpolate_rows(t_m, traj.t[::10], pos) + rng.normal(0, MOCAP_NOISE_M, (len(t_m), 3))
+        pos = np.array([model.body_centres(qi)[name] for qi in q_pin[::every]])
+        pos = interpolate_rows(t_m, t[::every], pos) + rng.normal(0, MOCAP_NOISE_M, (len(t_m), 3))
         pos[_dropouts(rng, len(t_m))] = np.nan
         bodies[name] = np.round(interpolate_rows(t_j, t_m, pos, max_gap_samples=0), 5)
     meta = {
-        "format": "cobra-run/1", "source": "hardware", "gait": gait.to_json(),
-        "notes": [f"reference dataset stand-in run (seed {SEED}); joint log {JOINT_RATE_HZ:g} Hz, "
+        "format": "cobra-run/1", "source": source, "gait": gait.to_json(),
+        "notes": [f"{note}; joint log {JOINT_RATE_HZ:g} Hz, "
                   f"motion capture {MOCAP_RATE_HZ:g} Hz merged onto the joint log's times"],
         "initial_heading_rad": run_plan.heading_rad,
     }
@@ -139,6 +175,14 @@ def record(sim: Simulator, run_plan: RunPlan, rng: np.random.Generator, model: C
                head_pos=np.round(interpolate_rows(t_j, t_m, head, max_gap_samples=0), 5),
                head_quat=np.round(interpolate_quaternions(t_j, t_m, quat, max_gap_samples=0), 6),
                bodies=bodies, meta=meta)
+
+
+def record(sim: Simulator, run_plan: RunPlan, rng: np.random.Generator, model: CobraModel) -> Run:
+    """Simulate one run on the ground-truth robot and 'measure' it (:func:`measure`)."""
+    gait = SidewindingGait(run_plan.freq_hz)
+    state = sim.rest_state(gait.q_ref(0.0), head_xy=run_plan.head_xy, heading_rad=run_plan.heading_rad)
+    traj = sim.rollout(state, gait.q_ref, run_plan.duration_s, record_every=2)
+    return measure(traj.t, traj.q, traj.q_meas, run_plan, rng, model)
 
 
 def generate(out_dir: Path, *, force: bool = False, progress: Callable[[str], None] | None = None) -> list[Path]:

@@ -5,7 +5,8 @@
    (:func:`sysid.signature.localise`).
 3. **Try every candidate** of the :class:`sysid.effects.EffectLibrary`: add its parameter to the
    fitted model and refit it together with the free parameters (few iterations, starting the
-   effect ten times further out than its fitting start, where its cost is not flat).
+   effect at the best of a small grid of values between inactive and its bounds, so that a
+   limit inactive at its nominal value starts where it acts).
 4. **Rank and name**: a candidate's evidence is (a) the held-out residual cost of the augmented
    model relative to the current one (hold-out validation: the held-out runs take no part in
    any fit) and (b) the Bayesian information criterion on the training residuals,
@@ -63,6 +64,7 @@ class Candidate:
     value: float
     unit: str
     held_out_improvement: float
+    runs_improved: float
     delta_bic: float
     signature_match: float
     train_cost: float
@@ -70,7 +72,8 @@ class Candidate:
 
     def to_json(self) -> dict:
         return {"name": self.name, "value": self.value, "unit": self.unit,
-                "held_out_improvement": self.held_out_improvement, "delta_bic": self.delta_bic,
+                "held_out_improvement": self.held_out_improvement, "runs_improved": self.runs_improved,
+                "delta_bic": self.delta_bic,
                 "signature_match": self.signature_match, "train_cost": self.train_cost,
                 "held_out_cost": self.held_out_cost}
 
@@ -119,10 +122,38 @@ def signature_match(effect: Effect, sig: Signature) -> float:
     return float(np.mean(scores))
 
 
-def _decade_up(effect: Effect) -> float:
-    """A second starting value ten times further from the inactive value (inside the bounds)."""
+#: Fractions of the way from an effect's inactive value to each of its bounds tried as its
+#: screening start (the bound itself is not tried: there the effect is extreme).
+START_FRACTIONS: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2, 0.4, 0.6, 0.8)
+
+
+def start_grid(effect: Effect) -> list[float]:
+    """Values of the effect's parameter tried as its screening start (see :func:`screening_start`).
+
+    From the inactive value towards each bound that differs from it, at
+    :data:`START_FRACTIONS` of the way (in unit coordinates: logarithmic for log-scaled
+    parameters). A limit such as ``torque_limit``, inactive at the stall torque, is only
+    active below the largest torque the gait demands, and its cost is flat above it: a start
+    on the flat part never moves.
+    """
     p = effect.parameter
-    return float(min(max(p.value + 10.0 * (effect.start - p.value), p.min), p.max))
+    z0 = float(p.to_unit_interval(p.value))
+    out = []
+    for end in (0.0, 1.0):
+        if abs(end - z0) > 1e-12:
+            out += [float(p.from_unit_interval(z0 + f * (end - z0))) for f in START_FRACTIONS]
+    return out
+
+
+def screening_start(effect: Effect, current: ModelParameters, objective: Objective,
+                    library: EffectLibrary) -> float:
+    """The grid value of the effect's parameter with the lowest training cost (one batched
+    evaluation, the current parameters held)."""
+    grid = start_grid(effect)
+    trial = library.transform(current, {effect.name: grid[0]})
+    X = np.array([trial.with_values(**{effect.parameter.name: v}).as_vector() for v in grid])
+    costs = [float(r @ r) for r in Objective(objective.runs, trial).residuals(X)]
+    return grid[int(np.argmin(costs))]
 
 
 def _spread(runs: Sequence[Run], n: int) -> list[Run]:
@@ -168,22 +199,26 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         train_obj = Objective(fit_set, current)
         hold_obj = Objective(list(holdout), current)
         rss0, n = _cost(train_obj, current)
-        hold0, _ = _cost(hold_obj, current)
+        hold0_runs = hold_obj.run_costs(current.as_vector())
+        hold0 = float(hold0_runs.sum())
         candidates: list[Candidate] = []
         for name in remaining:
             effect = library[name]
             progress(f"round {round_ + 1}: trying {name}")
             # the effect's parameter and the current free ones refit together: the current fit
             # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
-            trial = library.transform(current, {name: _decade_up(effect)})
-            fit = fit_lsq(Objective(fit_set, trial), max_iterations=config.screen_iterations)
+            trial = library.transform(current, {name: screening_start(effect, current, train_obj, library)})
+            # from the fitted model no horizon continuation is needed: it already is in the basin
+            fit = fit_lsq(Objective(fit_set, trial), max_iterations=config.screen_iterations, horizons_s=())
             augmented = fit.params
             rss1 = 2.0 * fit.cost
-            hold1, _ = _cost(Objective(list(holdout), augmented), augmented)
+            hold1_runs = Objective(list(holdout), augmented).run_costs(augmented.as_vector())
+            hold1 = float(hold1_runs.sum())
             k = len(trial.free_names)
             dbic = n * np.log(max(rss1, 1e-300) / max(rss0, 1e-300)) + k * np.log(n)
             candidates.append(Candidate(name, augmented.value(effect.parameter.name), effect.parameter.unit,
-                                        1.0 - hold1 / hold0 if hold0 > 0 else 0.0, float(dbic),
+                                        1.0 - hold1 / hold0 if hold0 > 0 else 0.0,
+                                        float(np.mean(hold1_runs < hold0_runs)), float(dbic),
                                         signature_match(effect, result.signature), rss1, hold1))
         candidates.sort(key=lambda c: c.held_out_improvement, reverse=True)
         if len(candidates) > 1 and candidates[1].held_out_improvement > 0.9 * candidates[0].held_out_improvement \
@@ -191,7 +226,8 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             candidates[0], candidates[1] = candidates[1], candidates[0]
         result.rounds.append(candidates)
         best = candidates[0] if candidates else None
-        if best is None or best.held_out_improvement < config.min_improvement or best.delta_bic >= config.bic_threshold:
+        if (best is None or best.held_out_improvement < config.min_improvement or best.runs_improved < 1.0
+                or best.delta_bic >= config.bic_threshold):
             break
         progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
         effect = library[best.name]
@@ -205,7 +241,8 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             "params": {effect.parameter.name: {"value": current.value(effect.parameter.name),
                                                "unit": effect.parameter.unit,
                                                "ci95": [interval.ci_low, interval.ci_high] if interval else None}},
-            "evidence": {"held_out_cost_reduction": best.held_out_improvement, "delta_bic": best.delta_bic,
+            "evidence": {"held_out_cost_reduction": best.held_out_improvement,
+                         "held_out_runs_improved": best.runs_improved, "delta_bic": best.delta_bic,
                          "signature_match": best.signature_match, "predicted_signature": effect.signature},
             "held_out_improvement": best.held_out_improvement,
         })

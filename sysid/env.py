@@ -90,9 +90,10 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Starting State
 
-    The initial parameters of ``objective.params``, each unit coordinate jittered by a uniform
-    offset in [-start_jitter, start_jitter] (drawn from ``self.np_random``) and clipped to
-    [0, 1]. The initial parameters are evaluated once, at construction; a jittered start costs
+    The initial parameters of ``objective.params`` (or, with ``start_from_best``, the best
+    parameters this environment has evaluated so far), each unit coordinate jittered by a
+    uniform offset in [-start_jitter, start_jitter] (drawn from ``self.np_random``) and clipped
+    to [0, 1]. The initial parameters are evaluated once, at construction; a jittered start costs
     one evaluation per reset (and falls back to the initial parameters if it fails).
 
     ## Episode End
@@ -117,6 +118,8 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
       False: the paper's state is the parameters alone, which are a Markov state here since
       the terms are a function of them).
     - ``failure_factor``: penalty of a failed evaluation in units of the initial total (default 2).
+    - ``start_from_best``: episodes start from the best parameters so far rather than the
+      initial ones (default False: the paper's fixed start).
 
     Raises:
         InputError: for a non-positive ``episode_length``, ``max_step`` outside (0, 1],
@@ -127,7 +130,8 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
     metadata = {"render_modes": []}
 
     def __init__(self, objective: TermsObjective, *, episode_length: int = 8, max_step: float = 0.1,
-                 start_jitter: float = 0.0, observe_terms: bool = False, failure_factor: float = 2.0):
+                 start_jitter: float = 0.0, observe_terms: bool = False, failure_factor: float = 2.0,
+                 start_from_best: bool = False):
         if episode_length < 1:
             raise InputError(f"episode_length must be >= 1 step, got {episode_length}")
         if not 0.0 < max_step <= 1.0:
@@ -142,6 +146,7 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
         self.max_step = float(max_step)
         self.start_jitter = float(start_jitter)
         self.observe_terms = bool(observe_terms)
+        self.start_from_best = bool(start_from_best)
         self.initial_z = objective.params.to_unit()
         d = self.initial_z.size
         self.action_space = spaces.Box(-1.0, 1.0, (d,), np.float32)
@@ -202,10 +207,12 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
     # -- gymnasium API ------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None,
               options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict[str, Any]]:
-        """Start from the (jittered) initial parameters; ``options`` are not used."""
+        """Start from the (jittered) initial or best parameters; ``options`` are not used."""
         super().reset(seed=seed)
         self._steps = 0
         z, terms = self.initial_z.copy(), self.reference_terms
+        if self.start_from_best:
+            z, terms = self.best_z.copy(), self.best_terms
         if self.start_jitter > 0.0:
             offset = self.np_random.uniform(-self.start_jitter, self.start_jitter, z.size)
             jittered = np.clip(z + offset, 0.0, 1.0)

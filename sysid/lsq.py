@@ -22,7 +22,12 @@ long-horizon sensitivities stiff. Finite differences in unit coordinates with st
 over that stiffness.
 
 Confidence intervals come from the Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` with
-``sigma^2 = ||r||^2 / (m - d)``, mapped to physical units; a parameter is flagged as not
+``sigma^2 = ||r||^2 / (m - d)`` plus the start-pose term ``A P A^T``, ``A = (J^T J)^-1 J^T J_p``
+and ``P`` the covariance of every run's measured start pose (x, y, heading; see
+:func:`sysid.objective.start_pose_sensitivity`), mapped to physical units. The start pose is a
+measurement too: each run is simulated from it, so its error moves the whole head path and
+biases the fit by more than the noise alone says (on ``benchmarks/recovery.py`` up to 0.7 %,
+three times the noise-only interval). a parameter is flagged as not
 identifiable when it sits on a bound, when it loads a flat direction of ``J`` (singular value
 below 1e-4 of the largest), or when its 95 % interval is wider than its value.
 """
@@ -34,7 +39,7 @@ import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from enum import Enum
-from typing import Callable, Iterator
+from typing import Callable, Iterator, Sequence
 
 import casadi as ca
 import numpy as np
@@ -42,6 +47,10 @@ import numpy as np
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
 from sysid.objective import Objective
+
+
+#: Horizons [s] of the continuation before the whole runs (see :func:`fit_lsq`).
+DEFAULT_HORIZONS_S: tuple[float, ...] = (1.5, 3.0)
 
 
 class FitStatus(str, Enum):
@@ -66,6 +75,7 @@ class IterationLog:
     step_norm: float
     evaluations: int
     seconds: float
+    horizon_s: float
 
 
 @dataclass(frozen=True)
@@ -159,35 +169,95 @@ def _friction_row(params: ModelParameters) -> tuple[np.ndarray, float] | None:
 
 
 def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: float | None = None,
-            fd_step: float = 1e-3, cost_tol: float = 1e-4, step_tol: float = 1e-5,
-            progress: Callable[[int, float, float], None] | None = None) -> FitResult:
+            horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, fd_step: float = 1e-3, cost_tol: float = 1e-4,
+            step_tol: float = 1e-5, progress: Callable[[int, float, float], None] | None = None) -> FitResult:
     """Fit the objective's free parameters from its parameter set's current values.
+
+    The fit is a continuation over the horizon: it is first run on each run's first
+    ``horizons_s[0]`` seconds, its result starts the fit on the first ``horizons_s[1]`` seconds,
+    and so on up to the whole runs (horizons at or beyond the longest run are skipped). A head
+    path over several seconds depends strongly nonlinearly on the ground parameters, so from a
+    guess 30-50 % off a fit on whole runs stops in a compensating local minimum (stiff ground,
+    high static friction, no damping: ``benchmarks/recovery.py``); over short horizons the
+    residuals are nearly linear in the parameters and lead it into the right basin.
 
     Args:
         objective: residuals over the training runs.
-        max_iterations: Jacobian evaluations at most.
-        budget_seconds: stop after this wall time (checked between evaluations).
+        max_iterations: Jacobian evaluations at most, per horizon stage.
+        budget_seconds: stop after this wall time (checked between evaluations, all stages).
+        horizons_s: the shorter horizons [s] of the continuation, increasing; () fits the
+            whole runs only.
         fd_step: finite-difference step in unit coordinates.
         cost_tol, step_tol: convergence tolerances (relative cost decrease, unit step norm).
-        progress: called with (iteration, cost, seconds) after each Jacobian.
+        progress: called with (iteration, cost, seconds) after each Jacobian; iterations count
+            on over the stages.
 
     Returns:
-        FitResult with the fitted parameters, an iteration log, a status and per-parameter
-        intervals and identifiability flags.
+        FitResult with the fitted parameters, an iteration log (with each entry's horizon), a
+        status and per-parameter intervals and identifiability flags.
     """
+    if list(horizons_s) != sorted(horizons_s) or any(h <= 0 for h in horizons_s):
+        raise InputError(f"horizons_s must be positive and increasing, got {list(horizons_s)}")
     t_start = time.perf_counter()
+    longest = max(float(r.t[-1] - r.t[0]) for r in objective.runs)
     params0 = objective.params
-    names = params0.free_names
-    d = len(names)
     z = params0.to_unit()
+    r0 = objective.residuals(params0.as_vector()[None])[0]
+    log: list[IterationLog] = []
+    done = objective.evaluations
+    settings = dict(fd_step=fd_step, cost_tol=cost_tol, step_tol=step_tol, progress=progress, t_start=t_start,
+                    budget_seconds=budget_seconds)
+    for h in horizons_s:
+        if h >= longest or (budget_seconds is not None and time.perf_counter() - t_start > budget_seconds):
+            break
+        stage = objective.truncated(h)
+        lm = _levenberg_marquardt(stage, z, max_iterations=max_iterations, first_iteration=len({e.iteration for e in log}),
+                                  evaluations_before=done, **settings)
+        z, done = lm.z, done + stage.evaluations
+        log.extend(lm.log)
+    objective.evaluations = done
+    # the whole runs always get at least one Jacobian: the intervals are computed from it
+    lm = _levenberg_marquardt(objective, z, max_iterations=max(max_iterations, 1),
+                              first_iteration=len({e.iteration for e in log}), evaluations_before=0, **settings)
+    z = lm.z
+    log.extend(lm.log)
+    fitted = params0.from_unit(z)
+    report, sv = _uncertainty(params0, fitted, lm.J, lm.r, z, objective.start_pose_sensitivity(lm.r))
+    return FitResult(fitted, lm.status, lm.cost, 0.5 * float(r0 @ r0), log, report, sv, objective.evaluations,
+                     time.perf_counter() - t_start)
+
+
+@dataclass
+class _LMState:
+    """Where one Levenberg-Marquardt stage ended."""
+
+    z: np.ndarray
+    r: np.ndarray
+    J: np.ndarray
+    cost: float
+    status: FitStatus
+    log: list[IterationLog]
+
+
+def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations: int, budget_seconds: float | None,
+                         fd_step: float, cost_tol: float, step_tol: float,
+                         progress: Callable[[int, float, float], None] | None, first_iteration: int,
+                         evaluations_before: int, t_start: float) -> _LMState:
+    """Box-constrained LM from unit coordinates ``z`` on one objective (see the module docstring)."""
+    params0 = objective.params
+    d = len(params0.free_names)
     friction = _friction_row(params0)
+    horizon = max(float(tg.duration) for tg in objective.spec.targets)
 
     def residuals(Z: np.ndarray) -> np.ndarray:
         X = np.array([params0.from_unit(zz).as_vector() for zz in np.atleast_2d(Z)])
         return objective.residuals(X)
 
+    def over_budget() -> bool:
+        return budget_seconds is not None and time.perf_counter() - t_start > budget_seconds
+
     r = residuals(z)[0]
-    cost0 = cost = 0.5 * float(r @ r)
+    cost = 0.5 * float(r @ r)
     log: list[IterationLog] = []
     damping = 1e-3
     status = FitStatus.MAX_ITERATIONS
@@ -196,7 +266,8 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
                                              "a": ca.Sparsity.dense(1 if friction else 0, d)},
                       {"printLevel": "none", "error_on_fail": False})
     J = np.zeros((r.size, d))
-    for it in range(max_iterations):
+    for k in range(max_iterations):
+        it = first_iteration + k
         # forward differences, stepping inward at the upper bound and away from mu_s = mu_c
         h = np.where(z + fd_step <= 1.0, fd_step, -fd_step)
         for j in range(d):
@@ -212,9 +283,7 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
         if progress:
             progress(it, cost, time.perf_counter() - t_start)
         accepted = False
-        while damping < 1e8:
-            if budget_seconds is not None and time.perf_counter() - t_start > budget_seconds:
-                break
+        while damping < 1e8 and not over_budget():
             Hd = H + damping * np.diag(np.maximum(np.diag(H), 1e-12))
             args = {"h": Hd, "g": g, "lbx": -z, "ubx": 1.0 - z}
             if friction:
@@ -228,8 +297,9 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
             except (InputError, RuntimeError):
                 c_try = np.inf
             ok = c_try < cost
-            log.append(IterationLog(it, cost, c_try, ok, damping, float(np.linalg.norm(dz)), objective.evaluations,
-                                    time.perf_counter() - t_start))
+            log.append(IterationLog(it, cost, c_try, ok, damping, float(np.linalg.norm(dz)),
+                                    evaluations_before + objective.evaluations,
+                                    time.perf_counter() - t_start, horizon))
             if ok:
                 rel = (cost - c_try) / max(cost, 1e-300)
                 z, r, cost = z_try, r_try, c_try
@@ -237,7 +307,7 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
                 accepted = True
                 break
             damping *= 4.0
-        if budget_seconds is not None and time.perf_counter() - t_start > budget_seconds:
+        if over_budget():
             status = FitStatus.BUDGET
             break
         if not accepted:
@@ -249,21 +319,25 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
         if log[-1].step_norm < step_tol:
             status = FitStatus.CONVERGED_STEP
             break
-    fitted = params0.from_unit(z)
-    report, sv = _uncertainty(params0, fitted, J, r, z)
-    return FitResult(fitted, status, cost, cost0, log, report, sv, objective.evaluations,
-                     time.perf_counter() - t_start)
+    return _LMState(z, r, J, cost, status, log)
 
 
 def _uncertainty(initial: ModelParameters, fitted: ModelParameters, J: np.ndarray, r: np.ndarray,
-                 z: np.ndarray) -> tuple[list[ParameterReport], np.ndarray]:
-    """95 % intervals from the Gauss-Newton covariance and identifiability flags."""
+                 z: np.ndarray, start_pose: tuple[np.ndarray, np.ndarray] | None = None
+                 ) -> tuple[list[ParameterReport], np.ndarray]:
+    """95 % intervals (measurement noise, and the start poses' uncertainty when given as
+    (residual derivatives, standard uncertainties)) and identifiability flags."""
     m, d = J.shape
     U, s, Vt = np.linalg.svd(J, full_matrices=False)
     sigma2 = float(r @ r) / max(m - d, 1)
     flat = s < 1e-4 * s[0] if s.size and s[0] > 0 else np.ones(d, dtype=bool)
     inv_s2 = np.where(flat, 0.0, 1.0 / np.where(s > 0, s, 1.0) ** 2)
-    cov_z = (Vt.T * inv_s2) @ Vt * sigma2
+    JtJ_pinv = (Vt.T * inv_s2) @ Vt
+    cov_z = JtJ_pinv * sigma2
+    if start_pose is not None:
+        J_pose, pose_std = start_pose
+        through = JtJ_pinv @ J.T @ (J_pose * pose_std)      # d z per standard start-pose error
+        cov_z += through @ through.T
     D = _unit_jacobian(fitted)
     std = np.sqrt(np.maximum(np.diag(cov_z), 0.0)) * np.abs(D)
     loads_flat = np.zeros(d, dtype=bool)

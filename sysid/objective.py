@@ -31,7 +31,7 @@ from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run, interpolate_rows
 from integrators.batch import BatchSimulator
-from integrators.runs import InitialPose, command_ticks
+from integrators.runs import InitialPose, StartObservation, command_ticks
 from integrators.simulator import SimSettings, delay_commands
 from sysid.executor import Executor, LocalExecutor
 
@@ -66,7 +66,8 @@ class RunTarget:
     name: str
     t0: float
     duration: float
-    pose: InitialPose
+    start: StartObservation
+    pose: InitialPose        # with the encoders read as the joint angles (no encoder offset)
     ticks: np.ndarray        # (n_ticks, 11) commands at the control ticks from t0
     t_samples: np.ndarray    # (S,) sample times from t0 [s]
     head_xy: np.ndarray      # (S, 2) measured head, NaN in gaps
@@ -74,7 +75,7 @@ class RunTarget:
     freq_hz: float
 
     @classmethod
-    def of_run(cls, run: Run, settings: SimSettings, sample_hz: float) -> "RunTarget":
+    def of_run(cls, run: Run, settings: SimSettings, sample_hz: float, model: CobraModel) -> "RunTarget":
         t0, t1 = float(run.t[0]), float(run.t[-1])
         ticks = command_ticks(run, settings.control_dt)
         ts = np.minimum(np.arange(0.0, t1 - t0 + 1e-9, 1.0 / sample_hz), t1 - t0)
@@ -82,7 +83,9 @@ class RunTarget:
         q = interpolate_rows(t0 + ts, run.t, run.q)
         gait = run.meta.get("gait") if isinstance(run.meta, dict) else None
         freq = float(gait["frequency_hz"]) if isinstance(gait, dict) and "frequency_hz" in gait else _dominant_freq(run)
-        return cls(str(run.source or "run"), t0, t1 - t0, InitialPose.of_run(run), ticks, ts, head, q, freq)
+        start = StartObservation.of_run(run)
+        return cls(str(run.source or "run"), t0, t1 - t0, start, start.pose(model, start.q_reading), ticks, ts, head,
+                   q, freq)
 
 
 def _dominant_freq(run: Run) -> float:
@@ -147,7 +150,8 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
         batch = BatchSimulator(model, env_params, spec.settings, threads=spec.threads)
         states = []
         for e, sim in enumerate(batch.sims):
-            pose = targets[e % n_runs].pose
+            start = targets[e % n_runs].start
+            pose = start.pose(model, sim.joints_reading(start.q_reading))
             states.append(sim.rest_state(pose.q_joints, head_xy=pose.head_xy, base_quat_wxyz=pose.head_quat_wxyz))
         _, _, q_rec, m_rec = batch.rollout(states, goals, duration, record_every=every,
                                            goal_index=np.tile(np.arange(n_runs), len(members)))
@@ -171,6 +175,39 @@ def residual_vector(spec: ObjectiveSpec, sim: Simulated) -> np.ndarray:
         parts.append(np.where(np.isfinite(dh), dh, 0.0).ravel())
         parts.append(((q - tg.q) / w.joint_scale_rad).ravel())
     return np.concatenate(parts)
+
+
+def start_pose_sensitivity(spec: ObjectiveSpec, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """How the residuals ``r`` of one parameter vector move with each run's start pose.
+
+    Ground and friction laws do not depend on where the robot stands or which way it faces,
+    so shifting a run's start by (dx, dy) [m] and turning it by dyaw [rad] about the head moves
+    the simulated head path rigidly and leaves the joints alone: the derivative of the head
+    residual is analytic, ``(1, 0)``, ``(0, 1)`` and ``(-(y - y0), x - x0)`` over the head scale,
+    with no simulation.
+
+    Returns:
+        ``(m, 3 n_runs)`` derivatives of ``r`` with respect to every run's (dx, dy, dyaw), and
+        the ``(3 n_runs,)`` standard uncertainties of those start-pose coordinates
+        (:class:`integrators.runs.InitialPose`).
+    """
+    scale = spec.weights.head_scale_m
+    J = np.zeros((r.size, 3 * len(spec.targets)))
+    std = np.zeros(3 * len(spec.targets))
+    k = 0
+    for i, tg in enumerate(spec.targets):
+        S = len(tg.t_samples)
+        seen = np.isfinite(tg.head_xy).all(axis=1)
+        sim = np.where(seen[:, None], tg.head_xy + r[k:k + 2 * S].reshape(S, 2) * scale, 0.0)
+        rel = sim - np.array(tg.pose.head_xy)
+        rows = k + 2 * np.flatnonzero(seen)
+        J[rows, 3 * i] = 1.0 / scale
+        J[rows + 1, 3 * i + 1] = 1.0 / scale
+        J[rows, 3 * i + 2] = -rel[seen, 1] / scale
+        J[rows + 1, 3 * i + 2] = rel[seen, 0] / scale
+        std[3 * i:3 * i + 3] = (tg.pose.xy_std_m, tg.pose.xy_std_m, tg.pose.yaw_std_rad)
+        k += 2 * S + tg.q.size
+    return J, std
 
 
 def scalar_terms(spec: ObjectiveSpec, sim: Simulated) -> dict[str, float]:
@@ -229,9 +266,16 @@ class Objective:
             raise InputError("the objective needs at least one run")
         if not self.params.free_names:
             raise InputError("every parameter is frozen: nothing to fit")
-        self.spec = ObjectiveSpec(tuple(RunTarget.of_run(r, self.settings, self.weights.sample_hz) for r in self.runs),
+        model = CobraModel.load()
+        self.spec = ObjectiveSpec(tuple(RunTarget.of_run(r, self.settings, self.weights.sample_hz, model)
+                                        for r in self.runs),
                                   self.params, self.weights, self.settings,
                                   threads=self.threads or (2 if self.executor.workers == 1 else 1))
+
+    def truncated(self, seconds: float) -> "Objective":
+        """The same objective over each run's first ``seconds`` [s] (its own evaluation count)."""
+        runs = [r.slice_time(float(r.t[0]), float(r.t[0]) + seconds) for r in self.runs]
+        return Objective(runs, self.params, self.weights, self.settings, self.executor, self.threads)
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -247,6 +291,17 @@ class Objective:
     def residuals(self, X: np.ndarray) -> np.ndarray:
         """(k, m) residual vectors for (k, d) free-parameter values in physical units."""
         return np.array(self._map(X, True))
+
+    def run_costs(self, x: np.ndarray) -> np.ndarray:
+        """Sum of squared residuals of each run (in the order of ``runs``) for one parameter vector."""
+        r = self.residuals(np.atleast_2d(x))[0]
+        sizes = [2 * len(tg.t_samples) + tg.q.size for tg in self.spec.targets]
+        return np.array([float(part @ part) for part in np.split(r, np.cumsum(sizes)[:-1])])
+
+    def start_pose_sensitivity(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Derivatives of residuals ``r`` by every run's start pose, and its uncertainties
+        (:func:`start_pose_sensitivity`)."""
+        return start_pose_sensitivity(self.spec, r)
 
     def terms(self, X: np.ndarray) -> list[dict[str, float]]:
         """The paper's reward terms (dicts) for each row of X."""

@@ -71,6 +71,7 @@ class PPOSettings:
         max_step: largest change of a unit coordinate per step.
         start_jitter: half-width of the uniform start offset in unit coordinates.
         observe_terms: the observation carries the normalised objective terms besides ``z``.
+        start_from_best: episodes start from the environment's best parameters so far.
         n_steps: steps per environment between policy updates (a multiple of
             ``episode_length`` keeps rollouts aligned with episodes).
         n_minibatches: minibatches per PPO epoch (the batch is ``n_steps * n_envs``).
@@ -87,6 +88,7 @@ class PPOSettings:
     max_step: float = 0.1
     start_jitter: float = 0.0
     observe_terms: bool = False
+    start_from_best: bool = True
     n_steps: int = 16
     n_minibatches: int = 2
     n_epochs: int = 10
@@ -100,7 +102,8 @@ class PPOSettings:
     def env_kwargs(self) -> dict[str, Any]:
         """Keyword arguments of :class:`sysid.env.ParameterTuningEnv`."""
         return {"episode_length": self.episode_length, "max_step": self.max_step,
-                "start_jitter": self.start_jitter, "observe_terms": self.observe_terms}
+                "start_jitter": self.start_jitter, "observe_terms": self.observe_terms,
+                "start_from_best": self.start_from_best}
 
 
 @dataclass(frozen=True)
@@ -155,6 +158,7 @@ class _TrainingMonitor(BaseCallback):
         self.progress = progress
         self.over_budget = False
         self.curve: list[tuple[int, float, float]] = []
+        self.history: list[tuple[float, int, np.ndarray]] = []
         self.best: _Best | None = None
         self._returns: list[float] = []
 
@@ -190,6 +194,8 @@ class _TrainingMonitor(BaseCallback):
         mean_reward = float(np.mean(self._returns)) if self._returns else float("nan")
         self._returns = []
         self.curve.append((self.num_timesteps, mean_reward, best.terms["total"]))
+        if not self.history or not np.array_equal(self.history[-1][2], best.z):
+            self.history.append((time.perf_counter() - self.t_start, self.num_timesteps, best.z.copy()))
         if self.progress is not None:
             self.progress(self.num_timesteps, best.terms["total"], mean_reward)
         return best
@@ -219,8 +225,10 @@ def fit_ppo(objective: Objective, *, budget_seconds: float | None = None, total_
         (timesteps exhausted), no iteration log, no singular values, a report without
         intervals, ``evaluations`` the objective evaluations of all environments (each
         evaluates the initial parameters once; invalid parameter vectors are not evaluated),
-        ``seconds`` the wall time including process start-up, and in ``extra``: ``reward_curve`` (list of (timesteps, mean episode reward,
-        best total)), ``timesteps``, ``initial_terms``, ``best_terms``, ``n_envs``, ``seed``.
+        ``seconds`` the wall time including process start-up, and in ``extra``: ``reward_curve``
+        (list of (timesteps, mean episode reward, best total)), ``best_history`` (list of
+        (seconds since the start, timesteps, best ModelParameters) each time the best changed,
+        checked after every rollout), ``timesteps``, ``initial_terms``, ``best_terms``, ``n_envs``, ``seed``.
 
     With ``n_envs > 1`` the environments run in ``forkserver`` (or ``spawn``) processes, which
     import the calling script: a script calling this must guard its entry point with
@@ -264,6 +272,7 @@ def fit_ppo(objective: Objective, *, budget_seconds: float | None = None, total_
         best.terms["total"], initial_terms["total"], [], _report(objective.params, fitted, best.z),
         np.empty(0), best.evaluations, time.perf_counter() - t_start, method="ppo",
         extra={"reward_curve": monitor.curve, "timesteps": timesteps, "initial_terms": initial_terms,
+               "best_history": [(sec, steps, objective.params.from_unit(z)) for sec, steps, z in monitor.history],
                "best_terms": best.terms, "n_envs": n_envs, "seed": seed},
     )
 

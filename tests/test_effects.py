@@ -73,3 +73,19 @@ def test_localisation_on_analytic_residuals():
     # a head-path offset sideways: head channel
     moved = dataclasses.replace(run, head_pos=run.head_pos + np.array([0.0, 0.05, 0.0]))
     assert localise([(moved, run)]).head_share > 0.99
+
+
+@pytest.mark.parametrize("effect", EFFECTS, ids=lambda e: e.name)
+def test_screening_starts_lie_between_inactive_and_the_bounds(effect):
+    """Every effect is tried from values where it acts, on each side it can act, within its
+    bounds; a limit inactive at the stall torque is also tried well below the 2-4 N m a
+    sidewinding joint demands."""
+    from sysid.diagnose import start_grid
+
+    p = effect.parameter
+    grid = np.array(start_grid(effect))
+    assert np.all((grid >= p.min) & (grid <= p.max)) and np.all(grid != p.value)
+    sides = {np.sign(v - p.value) for v in grid}
+    assert sides == {s for s, bound in ((-1.0, p.min), (1.0, p.max)) if bound != p.value}
+    if effect.name == "torque_saturation":
+        assert grid.min() < 2.5

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from cobra_model import CobraModel, ModelParameters
+from cobra_model.errors import InputError
 from integrators.simulator import Simulator
 from sysid.dataset import RunPlan, record
 from sysid.executor import LocalExecutor, RayExecutor
@@ -41,6 +42,14 @@ def test_lsq_recovers_parameters_within_two_percent(noisy_runs):
         assert r.value == pytest.approx(TRUTH.value(r.name), rel=0.02), r
         assert r.ci_low < r.value < r.ci_high
     assert [entry.iteration for entry in result.log] == sorted(entry.iteration for entry in result.log)
+    # the continuation: 1.5 s, then 3 s, then the whole 4 s runs
+    horizons = [entry.horizon_s for entry in result.log]
+    assert horizons == sorted(horizons) and horizons[0] == pytest.approx(1.5, abs=0.03) and horizons[-1] > 3.9
+
+
+def test_horizons_must_increase(noisy_runs):
+    with pytest.raises(InputError, match="horizons_s"):
+        fit_lsq(Objective(noisy_runs, TRUTH.with_frozen(free=["mu_c"])), horizons_s=(3.0, 1.5))
 
 
 def test_flat_directions_and_bounds_are_flagged():

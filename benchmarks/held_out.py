@@ -1,0 +1,28 @@
+"""Held-out measures shared by the identification benchmarks."""
+from __future__ import annotations
+
+from typing import Sequence
+
+import numpy as np
+
+from cobra_model import ModelParameters
+from cobra_model.runs import Run
+from integrators.runs import simulate_like
+from sysid.metrics import compare_runs
+
+
+def final_head_errors(runs: Sequence[Run], params: ModelParameters) -> np.ndarray:
+    """Final head-position error [m] of each run simulated with ``params``."""
+    return np.array([compare_runs(r, simulate_like(r, params=params)).to_json_dict()["head_final_error_m"]
+                     for r in runs])
+
+
+def time_to_reach(runs: Sequence[Run], history: Sequence[tuple[float, int, ModelParameters]],
+                  target_m: float) -> tuple[float, int] | None:
+    """(seconds, timesteps) at which a PPO best-so-far first had a summed held-out final head
+    error at or below ``target_m`` [m]; None if it never did (``history``: the
+    ``best_history`` of :func:`sysid.ppo.fit_ppo`)."""
+    for seconds, steps, params in history:
+        if final_head_errors(runs, params).sum() <= target_m:
+            return seconds, steps
+    return None

@@ -1,0 +1,102 @@
+"""Discrepancy workflow on runs MuJoCo generated: MuJoCo effect vs named effect, gap before/after, wall time.
+
+Mirrors ``benchmarks/diagnose_accuracy.py``, but the "measured" runs come from MuJoCo's twin of
+the same URDF (:mod:`sysid.mujoco_runs`: another contact model, integrator and servo model),
+with the same parameter error (``TRUTH``) and one physical effect added in MuJoCo per case:
+
+| case | MuJoCo effect | closest effect of our library |
+|---|---|---|
+| none | - | none |
+| frictionloss | joint ``frictionloss`` 0.3 N m | joint_coulomb_friction |
+| armature_damping | joint ``armature`` +0.03 kg m^2, ``damping`` +0.2 N m s/rad | none (parameters) |
+| forcerange | actuator ``forcerange`` 2 N m (peak demand 3.5-4 N m on the pitch joints) | torque_saturation |
+| anisotropic_friction | sideways / along-body ground friction 2 (body-aligned capsule pairs) | anisotropic_ground_friction |
+
+Per case: 9 runs (3 per gait frequency 0.35/0.5/0.65 Hz, ``--duration`` s each, random start),
+the first 6 for training and the last 3 held out; ``diagnose`` starts from the nominal model with
+``FREE`` parameters free. Progress goes to stderr, the Markdown table to stdout.
+Run: ``.venv/bin/python benchmarks/mujoco_robustness.py [--cases none,frictionloss] [--duration 6]``.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from cobra_model import CobraModel, ModelParameters
+from cobra_model.runs import Run
+from integrators.mujoco_twin import TwinOptions
+from sysid.dataset import RunPlan
+from sysid.diagnose import DiagnoseConfig, diagnose
+from sysid.mujoco_runs import record_mujoco, twin_options
+
+#: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
+TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
+FREE = ["mu_c", "joint_damping", "motor_km"]
+
+
+def _cases(base: TwinOptions) -> dict[str, tuple[str, dict[str, Any]]]:
+    """Case name -> (label, TwinOptions fields to change)."""
+    return {
+        "none": ("none", {}),
+        "frictionloss": ("frictionloss 0.3 N m", {"frictionloss": 0.3}),
+        "armature_damping": ("armature +0.03 kg m^2, damping +0.2 N m s/rad",
+                             {"armature": base.armature + 0.03, "damping": base.damping + 0.2}),
+        "forcerange": ("forcerange 2 N m", {"forcerange": 2.0}),
+        "anisotropic_friction": ("lateral/along ground friction 2", {"lateral_friction_ratio": 2.0}),
+    }
+
+
+def make_data(options: TwinOptions, truth: ModelParameters, duration_s: float, model: CobraModel,
+              progress: Callable[[str], None], seed: int = 3) -> tuple[list[Run], list[Run]]:
+    """9 MuJoCo runs of ``duration_s`` [s] (3 per gait): the first 6 to train, the last 3 held out."""
+    rng = np.random.default_rng(seed)
+    plans = [RunPlan(f"r{i}", f, duration_s, (rng.uniform(-1, 1), rng.uniform(-1, 1)), rng.uniform(0, 2 * np.pi),
+                     "train") for i, f in enumerate((0.35, 0.5, 0.65) * 3)]
+    runs = []
+    for k, plan in enumerate(plans):
+        progress(f"recording run {k + 1}/{len(plans)} ({plan.freq_hz} Hz, {duration_s:g} s) in MuJoCo")
+        runs.append(record_mujoco(plan, options, rng, model, truth))
+    return runs[:6], runs[6:]
+
+
+def main(argv: list[str] | None = None) -> int:
+    truth = ModelParameters.nominal().with_values(**TRUTH)
+    base = twin_options(truth)
+    cases = _cases(base)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--cases", default=",".join(cases),
+                        help=f"comma-separated subset of {', '.join(cases)} (default: all)")
+    parser.add_argument("--duration", type=float, default=6.0, help="run length [s] (default 6)")
+    args = parser.parse_args(argv)
+    chosen = [c.strip() for c in args.cases.split(",") if c.strip()]
+    unknown = [c for c in chosen if c not in cases]
+    if unknown or not chosen:
+        parser.error(f"--cases: unknown case(s) {unknown or chosen}; choose from {', '.join(cases)}")
+    if not args.duration > 1.0:
+        parser.error(f"--duration must exceed the gait's 1 s smooth start, got {args.duration} s")
+    model = CobraModel.load()
+    start = ModelParameters.nominal().with_frozen(free=FREE)
+    print("| MuJoCo effect | named effect(s) | held-out final head error before -> after [m] | wall [s] |")
+    print("|---|---|---|---:|", flush=True)
+    for case in chosen:
+        label, changes = cases[case]
+        t_case = time.perf_counter()
+        progress = lambda msg, case=case, t_case=t_case: print(  # noqa: E731
+            f"[{case} {time.perf_counter() - t_case:5.0f} s] {msg}", file=sys.stderr, flush=True)
+        train, hold = make_data(dataclasses.replace(base, **changes), truth, args.duration, model, progress)
+        t0 = time.perf_counter()
+        d = diagnose(train, hold, params=start, config=DiagnoseConfig(max_effects=2), progress=progress)
+        wall = time.perf_counter() - t0
+        named = ", ".join(e["name"] for e in d.effects) or "none"
+        b, a = d.gap_before["mean"]["head_final_error_m"], d.gap_after["mean"]["head_final_error_m"]
+        print(f"| {label} | {named} | {b:.4f} -> {a:.4f} | {wall:.0f} |", flush=True)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
