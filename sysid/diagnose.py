@@ -148,12 +148,25 @@ def start_grid(effect: Effect) -> list[float]:
 def screening_start(effect: Effect, current: ModelParameters, objective: Objective,
                     library: EffectLibrary) -> float:
     """The grid value of the effect's parameter with the lowest training cost (one batched
-    evaluation, the current parameters held)."""
+    evaluation, the current parameters held; values whose simulation diverges are skipped)."""
     grid = start_grid(effect)
     trial = library.transform(current, {effect.name: grid[0]})
     X = np.array([trial.with_values(**{effect.parameter.name: v}).as_vector() for v in grid])
-    costs = [float(r @ r) for r in Objective(objective.runs, trial).residuals(X)]
+    grid_objective = Objective(objective.runs, trial)
+    try:
+        costs = [float(r @ r) for r in grid_objective.residuals(X)]
+    except RuntimeError:  # an extreme grid value diverged: try them one by one
+        costs = [_cost_or_inf(grid_objective, x) for x in X]
     return grid[int(np.argmin(costs))]
+
+
+def _cost_or_inf(objective: Objective, x: np.ndarray) -> float:
+    """Sum of squared residuals at ``x``, infinite where the simulation diverges."""
+    try:
+        r = objective.residuals(x[None])[0]
+    except RuntimeError:
+        return float("inf")
+    return float(r @ r)
 
 
 def _spread(runs: Sequence[Run], n: int) -> list[Run]:

@@ -66,6 +66,11 @@ class PPOSettings:
     untrained policy included, finds about the same best vector: with two parameters the
     search is carried by exploration and the best-so-far bookkeeping.
 
+    ``start_from_best`` was measured on ``benchmarks/recovery.py`` (9 parameters, guess 30-50 %
+    off, seed 0): with the paper's fixed start PPO closed 61 % of the held-out head-error gap in
+    1024 timesteps; starting each episode from the best parameters so far it closed 66 % in 1024,
+    82 % in 1728 and 84 % in 3456.
+
     Attributes:
         episode_length: environment steps (objective evaluations) per episode.
         max_step: largest change of a unit coordinate per step.
