@@ -58,6 +58,7 @@ class FitStatus(str, Enum):
 
     CONVERGED_COST = "converged: relative cost decrease below tolerance"
     CONVERGED_STEP = "converged: step below tolerance"
+    CONVERGED_MODEL = "converged: the local model predicts a relative decrease below tolerance"
     MAX_ITERATIONS = "stopped: iteration limit"
     BUDGET = "stopped: time budget"
     NO_DESCENT = "stopped: no descent direction found (damping limit)"
@@ -290,6 +291,10 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
                 a, b = friction
                 args.update(a=a[None, :], lba=b - a @ z, uba=np.inf)
             dz = np.array(qp(**args)["x"]).ravel()
+            predicted = -float(g @ dz + 0.5 * dz @ H @ dz)   # Gauss-Newton model's decrease
+            if predicted < cost_tol * cost:
+                status = FitStatus.CONVERGED_MODEL
+                break
             z_try = np.clip(z + dz, 0.0, 1.0)
             try:
                 r_try = residuals(z_try)[0]
@@ -309,6 +314,8 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
             damping *= 4.0
         if over_budget():
             status = FitStatus.BUDGET
+            break
+        if status is FitStatus.CONVERGED_MODEL:
             break
         if not accepted:
             status = FitStatus.NO_DESCENT
