@@ -65,6 +65,8 @@ def run(args: argparse.Namespace) -> int:
     in_main_thread = threading.current_thread() is threading.main_thread()
     if in_main_thread:  # `kill` ends a session as Ctrl-C does: the link is removed
         previous_sigterm = signal.signal(signal.SIGTERM, _stop_on_sigterm)
+        # Ctrl-C ends it even when started in the background by a script, which ignores SIGINT
+        previous_sigint = signal.signal(signal.SIGINT, signal.default_int_handler)
     port = emulator.start()
     try:
         print(f"pty: {port}", flush=True)
@@ -86,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
         emulator.stop()
         if in_main_thread:
             signal.signal(signal.SIGTERM, previous_sigterm)
+            signal.signal(signal.SIGINT, previous_sigint)
         stats = emulator.stats()
         print(_describe(stats), flush=True)
         for note in stats.notes:

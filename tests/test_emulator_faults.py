@@ -175,7 +175,16 @@ class _FailingGait:
         return GAIT.to_json()
 
 
-def test_ctrl_c_stops_with_torque_off(tmp_path: Path, emulators) -> None:
+@pytest.fixture
+def python_ctrl_c() -> Iterator[None]:
+    """Python's own SIGINT handler, whatever this process inherited: a job started in the
+    background by a non-interactive shell ignores SIGINT, and Python then keeps it ignored."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_stops_with_torque_off(tmp_path: Path, emulators, python_ctrl_c) -> None:
     emulators.append(emu := start())
     # A real SIGINT to this process half a second in, wherever the loop then is (sleeping,
     # or inside the SDK waiting for a reply).
