@@ -108,8 +108,9 @@ def main() -> None:
     args = parser.parse_args()
     if args.detection_limit:
         names = args.cases.split(",") if args.cases else list(MAGNITUDES)
-        for name in names:
-            LIBRARY[name]
+        unknown = [name for name in names if name not in MAGNITUDES]
+        if unknown:
+            parser.error(f"--cases: unknown effect(s) {unknown}; known: {', '.join(MAGNITUDES)}")
         detection_limit(names, args.halvings)
         return
     cases = args.cases.split(",") if args.cases else ["none", *MAGNITUDES, *PAIRS, "reference"]

@@ -41,14 +41,6 @@ class InitialPose:
     xy_std_m: float = 0.0
     yaw_std_rad: float = 0.0
 
-    @classmethod
-    def of_run(cls, run: Run, model: CobraModel | None = None,
-               encoder_offset: float | np.ndarray = 0.0) -> "InitialPose":
-        """The run's starting pose (see :class:`StartObservation`); the encoders read the joint
-        angles plus ``encoder_offset`` [rad]."""
-        start = StartObservation.of_run(run)
-        return start.pose(model or CobraModel.load(), start.q_reading - encoder_offset)
-
 
 @dataclass(frozen=True)
 class StartObservation:

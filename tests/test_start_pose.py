@@ -8,7 +8,7 @@ import pytest
 
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.runs import Run
-from integrators.runs import InitialPose, command_ticks
+from integrators.runs import InitialPose, StartObservation, command_ticks
 from integrators.simulator import Simulator
 from sysid.dataset import RunPlan, record
 from sysid.objective import Objective
@@ -23,6 +23,12 @@ def recorded() -> tuple[list[Run], list[RunPlan]]:
     plans = [RunPlan(f"p{i}", 0.5, 2.0, (rng.uniform(-1, 1), rng.uniform(-1, 1)), rng.uniform(0, 2 * np.pi), "train")
              for i in range(4)]
     return [record(sim, p, rng, model) for p in plans], plans
+
+
+def _pose(run: Run, model: CobraModel | None = None) -> InitialPose:
+    """The run's start pose with the encoders read as the joint angles."""
+    start = StartObservation.of_run(run)
+    return start.pose(model or CobraModel.load(), start.q_reading)
 
 
 def _yaw(quat_wxyz: np.ndarray) -> float:
@@ -40,7 +46,7 @@ def test_start_pose_from_tracked_bodies_is_accurate_and_its_uncertainty_honest(r
     runs, plans = recorded
     model = CobraModel.load()
     for run, plan in zip(runs, plans):
-        pose = InitialPose.of_run(run, model)
+        pose = _pose(run, model)
         yaw_err = _wrap(_yaw(pose.head_quat_wxyz) - plan.heading_rad)
         xy_err = np.array(pose.head_xy) - np.array(plan.head_xy)
         assert 0 < pose.yaw_std_rad < np.deg2rad(0.05)
@@ -53,8 +59,8 @@ def test_start_pose_without_bodies_uses_the_head_orientation(recorded):
     """Without body tracks the heading comes from the head's own (noisier) orientation, and
     its uncertainty says so."""
     runs, plans = recorded
-    with_bodies = [InitialPose.of_run(r).yaw_std_rad for r in runs]
-    head_only = [InitialPose.of_run(dataclasses.replace(r, bodies={})) for r in runs]
+    with_bodies = [_pose(r).yaw_std_rad for r in runs]
+    head_only = [_pose(dataclasses.replace(r, bodies={})) for r in runs]
     assert np.mean([p.yaw_std_rad for p in head_only]) > 2 * np.mean(with_bodies)
     for pose, plan in zip(head_only, plans):
         assert abs(_wrap(_yaw(pose.head_quat_wxyz) - plan.heading_rad)) < 4 * pose.yaw_std_rad + 1e-3
