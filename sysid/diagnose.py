@@ -4,13 +4,18 @@
 2. **Localise** the disagreement of the fitted model on training and held-out runs
    (:func:`sysid.signature.localise`).
 3. **Try every candidate** of the :class:`sysid.effects.EffectLibrary`: add its parameter to the
-   fitted model and refit it together with the free parameters (few iterations, starting the
-   effect at the best of a small grid of values between inactive and its bounds, so that a
-   limit inactive at its nominal value starts where it acts).
+   fitted model and refit it together with the free parameters (few iterations). The refit
+   starts from the best of: the effect inactive, the effect at a small grid of values between
+   inactive and its bounds (a limit inactive at its nominal value starts where it acts), and a
+   profile of the effect on the model as it was before the base fit, whose free parameters may
+   have bent to mimic the effect (:func:`screening_start`).
 4. **Rank and name**: a candidate's evidence is (a) the held-out residual cost of the augmented
    model relative to the current one (hold-out validation: the held-out runs take no part in
    any fit) and (b) the Bayesian information criterion on the training residuals,
-   ``dBIC = n ln(RSS_1 / RSS_0) + k ln(n)``, which charges the ``k`` added parameters. The best
+   ``dBIC = n ln(RSS_1 / RSS_0) + k ln(n)``, which charges the ``k`` added parameters. The
+   current model is the better (on held-out runs) of the fitted model and its refit alone with
+   the candidates' iterations, so that a fit not yet converged does not lend every candidate
+   the improvement of its own further iterations. The best
    candidate by held-out improvement is named only when its held-out cost falls by at least
    ``min_improvement`` and ``dBIC < bic_threshold``; its signature match (how well the
    localisation numbers fit what the effect predicts) breaks near-ties and is reported.
@@ -25,6 +30,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run
 from integrators.runs import simulate_like
@@ -44,6 +50,8 @@ class DiagnoseConfig:
         fit_runs: training runs used by the fits (spread over the gaits; 0 = all).
         fit_iterations: least-squares iterations of the base and final fits.
         screen_iterations: iterations of each candidate's one-parameter refit.
+        profile_runs: training runs (spread over the gaits) that choose a candidate's start
+            (:func:`screening_start`).
         min_improvement: held-out cost reduction a named effect must bring (fraction).
         bic_threshold: dBIC below which the added parameter is worth its cost (-10: strong).
     """
@@ -52,6 +60,7 @@ class DiagnoseConfig:
     fit_runs: int = 6
     fit_iterations: int = 6
     screen_iterations: int = 4
+    profile_runs: int = 3
     min_improvement: float = 0.2
     bic_threshold: float = -10.0
 
@@ -125,13 +134,25 @@ def signature_match(effect: Effect, sig: Signature) -> float:
 #: Fractions of the way from an effect's inactive value to each of its bounds tried as its
 #: screening start (the bound itself is not tried: there the effect is extreme).
 START_FRACTIONS: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2, 0.4, 0.6, 0.8)
+#: The coarser fractions at which the unbent model is profiled (:func:`screening_start`).
+PROFILE_FRACTIONS: tuple[float, ...] = (0.2, 0.4, 0.6, 0.8)
+#: Longest stretch of each run [s] that the screening (grid, profiles, candidate refits and
+#: their training costs) uses; the held-out comparison always uses the whole runs.
+SCREEN_HORIZON_S = 6.0
 
 
-def start_grid(effect: Effect) -> list[float]:
+def _capped(objective: Objective, horizon_s: float = SCREEN_HORIZON_S) -> Objective:
+    """``objective`` on at most the first ``horizon_s`` of each run."""
+    if max(float(r.t[-1] - r.t[0]) for r in objective.runs) > horizon_s:
+        return objective.truncated(horizon_s)
+    return objective
+
+
+def start_grid(effect: Effect, fractions: Sequence[float] = START_FRACTIONS) -> list[float]:
     """Values of the effect's parameter tried as its screening start (see :func:`screening_start`).
 
-    From the inactive value towards each bound that differs from it, at
-    :data:`START_FRACTIONS` of the way (in unit coordinates: logarithmic for log-scaled
+    From the inactive value towards each bound that differs from it, at ``fractions`` of the
+    way (in unit coordinates: logarithmic for log-scaled
     parameters). A limit such as ``torque_limit``, inactive at the stall torque, is only
     active below the largest torque the gait demands, and its cost is flat above it: a start
     on the flat part never moves.
@@ -141,30 +162,126 @@ def start_grid(effect: Effect) -> list[float]:
     out = []
     for end in (0.0, 1.0):
         if abs(end - z0) > 1e-12:
-            out += [float(p.from_unit_interval(z0 + f * (end - z0))) for f in START_FRACTIONS]
+            out += [float(p.from_unit_interval(z0 + f * (end - z0))) for f in fractions]
     return out
 
 
-def screening_start(effect: Effect, current: ModelParameters, objective: Objective,
-                    library: EffectLibrary) -> float:
-    """The grid value of the effect's parameter with the lowest training cost (one batched
-    evaluation, the current parameters held; values whose simulation diverges are skipped)."""
-    grid = start_grid(effect)
-    trial = library.transform(current, {effect.name: grid[0]})
-    X = np.array([trial.with_values(**{effect.parameter.name: v}).as_vector() for v in grid])
-    grid_objective = Objective(objective.runs, trial)
+def _costs(objective: Objective, X: np.ndarray) -> np.ndarray:
+    """Sums of squared residuals of the rows of ``X`` (one batched evaluation; a row whose
+    simulation diverges, or that is not a valid parameter vector, costs infinity)."""
     try:
-        costs = [float(r @ r) for r in grid_objective.residuals(X)]
-    except RuntimeError:  # an extreme grid value diverged: try them one by one
-        costs = [_cost_or_inf(grid_objective, x) for x in X]
-    return grid[int(np.argmin(costs))]
+        return np.array([float(r @ r) for r in objective.residuals(X)])
+    except (RuntimeError, InputError):  # an extreme value diverged: try them one by one
+        return np.array([_cost_or_inf(objective, x) for x in X])
+
+
+#: Levenberg-Marquardt dampings of a profile's step, tried together (:func:`_profiles`).
+PROFILE_DAMPINGS: tuple[float, ...] = (1e-2, 1e-1, 1.0)
+
+
+def _valid(params: ModelParameters, z: np.ndarray) -> bool:
+    """Whether unit coordinates ``z`` of ``params``' free parameters are a valid set (mu_s >= mu_c)."""
+    try:
+        params.from_unit(z)
+    except InputError:
+        return False
+    return True
+
+
+def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: Sequence[Run]
+              ) -> tuple[np.ndarray, list[ModelParameters]]:
+    """One damped Gauss-Newton step of the other free parameters of ``trial`` with ``name`` held
+    at each of ``values`` (a profile): the best cost of each on ``runs`` and its parameters.
+
+    Batched: the finite-difference Jacobians at every value are one evaluation and the steps
+    at every value and damping (:data:`PROFILE_DAMPINGS`) another.
+    """
+    objective = _capped(Objective(runs, trial))
+    free = list(trial.free_names)
+    k = free.index(name)
+    others = [i for i in range(len(free)) if i != k]
+    z0 = trial.to_unit()
+    starts = []
+    for v in values:
+        z = z0.copy()
+        z[k] = float(trial[name].to_unit_interval(v))
+        starts.append(z)
+    h = 1e-3
+    rows = []
+    for z in starts:
+        rows.append(z)
+        for i in others:
+            zi = z.copy()
+            zi[i] += h if z[i] + h <= 1.0 else -h
+            if not _valid(trial, zi):       # stepping into mu_s < mu_c: step the other way
+                zi[i] = z[i] - (zi[i] - z[i])
+            rows.append(zi)
+    def as_x(Z: Sequence[np.ndarray]) -> np.ndarray:
+        return np.array([trial.from_unit(z).as_vector() for z in Z])
+
+    try:
+        R = objective.residuals(as_x(rows))
+    except RuntimeError:  # a start diverged: no profile from it
+        return np.full(len(values), np.inf), [trial.from_unit(z) for z in starts]
+    trials = []
+    per = len(others) + 1
+    for j, z in enumerate(starts):
+        r = R[j * per]
+        J = np.stack([(R[j * per + 1 + n] - r) / (rows[j * per + 1 + n][i] - z[i])
+                      for n, i in enumerate(others)], axis=1)
+        g, H = J.T @ r, J.T @ J
+        for lam in PROFILE_DAMPINGS:
+            dz = np.linalg.solve(H + lam * np.diag(np.maximum(np.diag(H), 1e-12)), -g)
+            zt = z.copy()
+            zt[others] = np.clip(z[others] + dz, 0.0, 1.0)
+            trials.append(zt if _valid(trial, zt) else z)
+    costs = _costs(objective, as_x(trials)).reshape(len(values), len(PROFILE_DAMPINGS))
+    pick = costs.argmin(axis=1)
+    return (costs[np.arange(len(values)), pick],
+            [trial.from_unit(trials[j * len(PROFILE_DAMPINGS) + c]) for j, c in enumerate(pick)])
+
+
+def screening_start(effect: Effect, current: ModelParameters, unbent: ModelParameters, runs: Sequence[Run],
+                    library: EffectLibrary) -> ModelParameters:
+    """Where a candidate's screening refit starts: the effect added to one of two bases.
+
+    - ``current``, the fitted model, with the effect inactive or at the grid value of lowest
+      cost (inactive when every grid value makes the fit worse);
+    - ``unbent``, the model before the base fit bent its free parameters towards the missing
+      effect, with the effect held at each of the coarser :data:`PROFILE_FRACTIONS` while the
+      free parameters take a Gauss-Newton step (:func:`_profiles`). A fit that mimicked a
+      torque limit by a weaker, more damped motor only shows the limit from there: with the
+      limit added to the bent motor the cost rises at every grid value.
+
+    The start of lowest cost on ``runs`` (their first :data:`SCREEN_HORIZON_S`) wins. Grid
+    values at which the effect changes nothing (a limit above what the gait demands) are
+    profiled once.
+    """
+    name = effect.parameter.name
+    values = [effect.parameter.value, *start_grid(effect)]
+    trial = library.transform(current, {effect.name: values[0]})
+    costs = _costs(_capped(Objective(runs, trial)), np.array([trial.with_values(**{name: v}).as_vector()
+                                                              for v in values]))
+    k = int(np.argmin(costs))
+    best, best_cost = trial.with_values(**{name: values[k]}), costs[k]
+    coarse = start_grid(effect, PROFILE_FRACTIONS)
+    unbent_trial = library.transform(unbent, {effect.name: coarse[0]})
+    raw = _costs(_capped(Objective(runs, unbent_trial)),
+                 np.array([unbent_trial.with_values(**{name: v}).as_vector() for v in coarse]))
+    distinct = [v for n, v in enumerate(coarse) if np.isfinite(raw[n]) and raw[n] not in set(raw[:n])]
+    if distinct:
+        profiled, params = _profiles(unbent_trial, name, distinct, runs)
+        j = int(np.argmin(profiled))
+        if profiled[j] < best_cost:
+            best = params[j]
+    return best
 
 
 def _cost_or_inf(objective: Objective, x: np.ndarray) -> float:
     """Sum of squared residuals at ``x``, infinite where the simulation diverges."""
     try:
         r = objective.residuals(x[None])[0]
-    except RuntimeError:
+    except (RuntimeError, InputError):
         return float("inf")
     return float(r @ r)
 
@@ -208,11 +325,18 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     train_pairs = [(r, simulate_like(r, params=current)) for r in fit_set]
     result.signature = localise(train_pairs + list(zip(holdout, sims_before)))
     remaining = list(library.names)
+    profile_set = _spread(fit_set, config.profile_runs)
     for round_ in range(config.max_effects):
-        train_obj = Objective(fit_set, current)
-        hold_obj = Objective(list(holdout), current)
-        rss0, n = _cost(train_obj, current)
-        hold0_runs = hold_obj.run_costs(current.as_vector())
+        # the free parameters as they were before any fit; effects found so far kept
+        unbent = current.with_values(**{p: start.value(p) for p in start.free_names})
+        # the baseline every candidate is measured against: the current model refitted alone as
+        # a candidate is (a fit that had not yet converged must not make every effect look useful)
+        progress(f"round {round_ + 1}: refitting without a new effect")
+        null = fit_lsq(_capped(Objective(fit_set, current)), max_iterations=config.screen_iterations, horizons_s=())
+        hold_current = Objective(list(holdout), current).run_costs(current.as_vector())
+        hold_null = Objective(list(holdout), null.params).run_costs(null.params.as_vector())
+        rss0, n = _cost(_capped(Objective(fit_set, null.params)), null.params)
+        hold0_runs = hold_null if hold_null.sum() < hold_current.sum() else hold_current
         hold0 = float(hold0_runs.sum())
         candidates: list[Candidate] = []
         for name in remaining:
@@ -220,14 +344,15 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             progress(f"round {round_ + 1}: trying {name}")
             # the effect's parameter and the current free ones refit together: the current fit
             # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
-            trial = library.transform(current, {name: screening_start(effect, current, train_obj, library)})
+            trial = screening_start(effect, current, unbent, profile_set, library)
             # from the fitted model no horizon continuation is needed: it already is in the basin
-            fit = fit_lsq(Objective(fit_set, trial), max_iterations=config.screen_iterations, horizons_s=())
+            fit = fit_lsq(_capped(Objective(fit_set, trial)), max_iterations=config.screen_iterations,
+                          horizons_s=())
             augmented = fit.params
             rss1 = 2.0 * fit.cost
             hold1_runs = Objective(list(holdout), augmented).run_costs(augmented.as_vector())
             hold1 = float(hold1_runs.sum())
-            k = len(trial.free_names)
+            k = len(trial.free_names) - len(current.free_names)
             dbic = n * np.log(max(rss1, 1e-300) / max(rss0, 1e-300)) + k * np.log(n)
             candidates.append(Candidate(name, augmented.value(effect.parameter.name), effect.parameter.unit,
                                         1.0 - hold1 / hold0 if hold0 > 0 else 0.0,

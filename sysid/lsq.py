@@ -50,7 +50,7 @@ from sysid.objective import Objective
 
 
 #: Horizons [s] of the continuation before the whole runs (see :func:`fit_lsq`).
-DEFAULT_HORIZONS_S: tuple[float, ...] = (1.5, 3.0)
+DEFAULT_HORIZONS_S: tuple[float, ...] = (1.5, 3.0, 6.0)
 
 
 class FitStatus(str, Enum):
@@ -170,8 +170,9 @@ def _friction_row(params: ModelParameters) -> tuple[np.ndarray, float] | None:
 
 
 def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: float | None = None,
-            horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, fd_step: float = 1e-3, cost_tol: float = 1e-4,
-            step_tol: float = 1e-5, progress: Callable[[int, float, float], None] | None = None) -> FitResult:
+            horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, fd_step: float = 1e-3, cost_tol: float = 1e-3,
+            stage_cost_tol: float = 1e-2, step_tol: float = 1e-5,
+            progress: Callable[[int, float, float], None] | None = None) -> FitResult:
     """Fit the objective's free parameters from its parameter set's current values.
 
     The fit is a continuation over the horizon: it is first run on each run's first
@@ -180,7 +181,13 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     path over several seconds depends strongly nonlinearly on the ground parameters, so from a
     guess 30-50 % off a fit on whole runs stops in a compensating local minimum (stiff ground,
     high static friction, no damping: ``benchmarks/recovery.py``); over short horizons the
-    residuals are nearly linear in the parameters and lead it into the right basin.
+    residuals are nearly linear in the parameters and lead it into the right basin. The shorter
+    stages only have to lead there, so they stop at a looser relative cost decrease
+    (``stage_cost_tol``); the whole runs get ``cost_tol``. Measured on the shipped reference
+    dataset (22 runs of 11 s, all 9 parameters free, from nominal): tightening ``cost_tol`` from
+    1e-3 to 1e-4 takes the whole-run stage from 2 to 8 Jacobians (51 s to 102 s in all) for a
+    further 0.1 % of cost and held-out final head errors that differ by under 1 mm; without the
+    6 s stage the whole-run stage needs 5 Jacobians.
 
     Args:
         objective: residuals over the training runs.
@@ -190,6 +197,7 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
             whole runs only.
         fd_step: finite-difference step in unit coordinates.
         cost_tol, step_tol: convergence tolerances (relative cost decrease, unit step norm).
+        stage_cost_tol: relative cost decrease that ends a shorter-horizon stage.
         progress: called with (iteration, cost, seconds) after each Jacobian; iterations count
             on over the stages.
 
@@ -212,8 +220,9 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
         if h >= longest or (budget_seconds is not None and time.perf_counter() - t_start > budget_seconds):
             break
         stage = objective.truncated(h)
-        lm = _levenberg_marquardt(stage, z, max_iterations=max_iterations, first_iteration=len({e.iteration for e in log}),
-                                  evaluations_before=done, **settings)
+        lm = _levenberg_marquardt(stage, z, max_iterations=max_iterations,
+                                  first_iteration=len({e.iteration for e in log}), evaluations_before=done,
+                                  **{**settings, "cost_tol": stage_cost_tol})
         z, done = lm.z, done + stage.evaluations
         log.extend(lm.log)
     objective.evaluations = done

@@ -1,0 +1,54 @@
+"""Where the discrepancy workflow starts a candidate's refit (sysid.diagnose.screening_start)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cobra_model import CobraModel, ModelParameters
+from integrators.simulator import Simulator
+from sysid.dataset import RunPlan, record
+from sysid.diagnose import screening_start
+from sysid.effects import EffectLibrary
+from sysid.lsq import fit_lsq
+from sysid.objective import Objective
+
+LIBRARY = EffectLibrary()
+FREE = ["mu_c", "joint_damping", "motor_km"]
+NOMINAL = ModelParameters.nominal().with_frozen(free=FREE)
+TRUTH = NOMINAL.with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
+
+
+def measured(truth: ModelParameters) -> list:
+    model = CobraModel.load()
+    sim = Simulator(model, truth)
+    rng = np.random.default_rng(8)
+    plans = [RunPlan("a", 0.5, 4.0, (0.0, 0.0), 0.3, "train"), RunPlan("b", 0.65, 4.0, (0.4, -0.2), 2.0, "train")]
+    return [record(sim, p, rng, model) for p in plans]
+
+
+def cost(runs: list, params: ModelParameters) -> float:
+    r = Objective(runs, params).residuals(params.as_vector()[None])[0]
+    return float(r @ r)
+
+
+@pytest.mark.slow
+def test_a_limit_the_fit_bent_the_motor_to_mimic_starts_from_the_unbent_model():
+    """A 2.5 N m torque limit hidden in the data: the fit without it weakens the motor, after which
+    adding any limit only raises the cost; the start must come from the unbent model, below the
+    limits the gait demands, and already beat the bent fit."""
+    runs = measured(LIBRARY.transform(TRUTH, {"torque_saturation": 2.5}, frozen=True))
+    bent = fit_lsq(Objective(runs, NOMINAL), max_iterations=6).params
+    assert bent.value("motor_km") < 0.9 * TRUTH.value("motor_km")     # the compensation this guards against
+    start = screening_start(LIBRARY["torque_saturation"], bent, NOMINAL, runs, LIBRARY)
+    assert start.value("torque_limit") < 4.0
+    assert set(start.free_names) == {*FREE, "torque_limit"}
+    assert cost(runs, start) < 0.8 * cost(runs, bent)
+
+
+@pytest.mark.slow
+def test_an_effect_absent_from_the_data_starts_inactive():
+    """No backlash in the data and the current model exact: every grid value costs more than
+    none, so the refit starts with the effect inactive."""
+    runs = measured(TRUTH)
+    start = screening_start(LIBRARY["backlash"], TRUTH, NOMINAL, runs, LIBRARY)
+    assert start.value("backlash") == LIBRARY["backlash"].parameter.value
