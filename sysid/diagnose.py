@@ -35,7 +35,7 @@ from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run
 from integrators.runs import simulate_like
 from sysid.effects import Effect, EffectLibrary
-from sysid.lsq import FitResult, fit_lsq
+from sysid.lsq import FitResult, feasible, fit_lsq, forward_steps
 from sysid.objective import Objective
 from sysid.report import HeldOut, gap_summary, pair_held_out
 from sysid.signature import Signature, localise
@@ -177,15 +177,8 @@ def _costs(objective: Objective, X: np.ndarray) -> np.ndarray:
 
 #: Levenberg-Marquardt dampings of a profile's step, tried together (:func:`_profiles`).
 PROFILE_DAMPINGS: tuple[float, ...] = (1e-2, 1e-1, 1.0)
-
-
-def _valid(params: ModelParameters, z: np.ndarray) -> bool:
-    """Whether unit coordinates ``z`` of ``params``' free parameters are a valid set (mu_s >= mu_c)."""
-    try:
-        params.from_unit(z)
-    except InputError:
-        return False
-    return True
+#: Finite-difference step of a profile's Jacobian, in unit coordinates (as ``fit_lsq``'s default).
+FD_STEP = 1e-3
 
 
 def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: Sequence[Run]
@@ -206,15 +199,13 @@ def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: 
         z = z0.copy()
         z[k] = float(trial[name].to_unit_interval(v))
         starts.append(z)
-    h = 1e-3
     rows = []
     for z in starts:
         rows.append(z)
+        h = forward_steps(trial, z, FD_STEP)
         for i in others:
             zi = z.copy()
-            zi[i] += h if z[i] + h <= 1.0 else -h
-            if not _valid(trial, zi):       # stepping into mu_s < mu_c: step the other way
-                zi[i] = z[i] - (zi[i] - z[i])
+            zi[i] += h[i]
             rows.append(zi)
     def as_x(Z: Sequence[np.ndarray]) -> np.ndarray:
         return np.array([trial.from_unit(z).as_vector() for z in Z])
@@ -234,7 +225,7 @@ def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: 
             dz = np.linalg.solve(H + lam * np.diag(np.maximum(np.diag(H), 1e-12)), -g)
             zt = z.copy()
             zt[others] = np.clip(z[others] + dz, 0.0, 1.0)
-            trials.append(zt if _valid(trial, zt) else z)
+            trials.append(zt if feasible(trial, zt) else z)
     costs = _costs(objective, as_x(trials)).reshape(len(values), len(PROFILE_DAMPINGS))
     pick = costs.argmin(axis=1)
     return (costs[np.arange(len(values)), pick],

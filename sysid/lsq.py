@@ -126,13 +126,25 @@ def _quiet_stdout() -> Iterator[None]:
         os.close(saved)
 
 
-def _feasible(params: ModelParameters, z: np.ndarray) -> bool:
+def feasible(params: ModelParameters, z: np.ndarray) -> bool:
     """Whether unit coordinates ``z`` give a valid parameter set (bounds, mu_s >= mu_c)."""
     try:
         params.from_unit(z)
     except InputError:
         return False
     return True
+
+
+def forward_steps(params: ModelParameters, z: np.ndarray, step: float) -> np.ndarray:
+    """Signed finite-difference steps, one per unit coordinate of ``z``: ``step``, stepping
+    inward at the upper bound and away from ``mu_s = mu_c`` where a forward step is invalid."""
+    h = np.where(z + step <= 1.0, step, -step)
+    for j in range(z.size):
+        probe = z.copy()
+        probe[j] += h[j]
+        if not feasible(params, probe):
+            h[j] = -h[j]
+    return h
 
 
 def _unit_jacobian(params: ModelParameters) -> np.ndarray:
@@ -278,13 +290,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
     J = np.zeros((r.size, d))
     for k in range(max_iterations):
         it = first_iteration + k
-        # forward differences, stepping inward at the upper bound and away from mu_s = mu_c
-        h = np.where(z + fd_step <= 1.0, fd_step, -fd_step)
-        for j in range(d):
-            probe = z.copy()
-            probe[j] += h[j]
-            if not _feasible(params0, probe):
-                h[j] = -h[j]
+        h = forward_steps(params0, z, fd_step)
         Zp = z[None, :] + np.diag(h)
         Rp = residuals(Zp)
         J = ((Rp - r[None, :]) / h[:, None]).T
