@@ -6,13 +6,15 @@ like the reference dataset (quantised encoders, mocap noise and dropouts, jitter
 diagnosed with the nominal model (``mu_c``, ``joint_damping`` and ``motor_km`` free and 9-60 %
 off). Also diagnoses the shipped reference dataset. ``--detection-limit`` instead halves each
 effect's magnitude until the workflow no longer names it first (one round per diagnosis), and
-prints the smallest magnitude named. Run:
+prints the smallest magnitude named. Progress goes to stderr, the Markdown table to stdout. Run:
 ``.venv/bin/python benchmarks/diagnose_accuracy.py [--cases NAME,...] [--detection-limit]``.
 """
 from __future__ import annotations
 
 import argparse
+import sys
 import time
+from typing import Callable
 
 import numpy as np
 
@@ -47,11 +49,18 @@ def make_data(effects: dict[str, float], seed: int = 3):
     return runs[:6], runs[6:]
 
 
+def progress_for(case: str) -> Callable[[str], None]:
+    """A progress callback that prints ``[case  elapsed s] message`` to stderr."""
+    t0 = time.perf_counter()
+    return lambda msg: print(f"[{case} {time.perf_counter() - t0:5.0f} s] {msg}", file=sys.stderr, flush=True)
+
+
 def run_case(effects: dict[str, float], max_effects: int) -> tuple[Diagnosis, float]:
+    progress = progress_for("+".join(f"{k}={v:g}" for k, v in effects.items()) or "none")
     train, hold = make_data(effects)
     t0 = time.perf_counter()
     d = diagnose(train, hold, params=ModelParameters.nominal().with_frozen(free=FREE),
-                 config=DiagnoseConfig(max_effects=max_effects))
+                 config=DiagnoseConfig(max_effects=max_effects), progress=progress)
     return d, time.perf_counter() - t0
 
 
@@ -70,7 +79,7 @@ def accuracy(cases: list[str]) -> None:
             tr, va = load_manifest(DATA_DIR / "manifest.json")
             t0 = time.perf_counter()
             d = diagnose(read_runs(tr), read_runs(va), params=ModelParameters.nominal(),
-                         config=DiagnoseConfig(max_effects=2))
+                         config=DiagnoseConfig(max_effects=2), progress=progress_for("reference"))
             wall, mag = time.perf_counter() - t0, "(hidden)"
         else:
             hidden = {} if case == "none" else {name: MAGNITUDES[name] for name in case.split("+")}

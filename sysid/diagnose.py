@@ -20,7 +20,9 @@
    ``min_improvement`` and ``dBIC < bic_threshold``; its signature match (how well the
    localisation numbers fit what the effect predicts) breaks near-ties and is reported.
    Otherwise the report says that no candidate explains the gap and describes the signature.
-5. **Add it and refit** all free parameters with the effect; repeat for up to ``max_effects``.
+5. **Add it and refit** all free parameters with the effect on the whole training runs, starting
+   from the candidate's refit (screening uses each run's first ``SCREEN_HORIZON_S`` seconds, so
+   no further horizon continuation is needed); repeat for up to ``max_effects``.
 """
 from __future__ import annotations
 
@@ -48,7 +50,10 @@ class DiagnoseConfig:
     Attributes:
         max_effects: effects to look for, one after the other.
         fit_runs: training runs used by the fits (spread over the gaits; 0 = all).
-        fit_iterations: least-squares iterations of the base and final fits.
+        fit_iterations: least-squares iterations of the base fit (per horizon stage).
+        final_iterations: least-squares iterations of the refit after an effect is named (whole
+            runs only, from the candidate's refit: it starts near the minimum and is what the
+            report's intervals and held-out gap come from).
         screen_iterations: iterations of each candidate's one-parameter refit.
         profile_runs: training runs (spread over the gaits) that choose a candidate's start
             (:func:`screening_start`).
@@ -59,6 +64,7 @@ class DiagnoseConfig:
     max_effects: int = 2
     fit_runs: int = 6
     fit_iterations: int = 6
+    final_iterations: int = 15
     screen_iterations: int = 4
     profile_runs: int = 3
     min_improvement: float = 0.2
@@ -78,6 +84,7 @@ class Candidate:
     signature_match: float
     train_cost: float
     held_out_cost: float
+    params: ModelParameters = field(compare=False, repr=False)
 
     def to_json(self) -> dict:
         return {"name": self.name, "value": self.value, "unit": self.unit,
@@ -292,11 +299,6 @@ def _spread(runs: Sequence[Run], n: int) -> list[Run]:
     return out
 
 
-def _cost(obj: Objective, params: ModelParameters) -> tuple[float, int]:
-    r = obj.residuals(params.as_vector())[0]
-    return float(r @ r), r.size
-
-
 def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParameters | None = None,
              library: EffectLibrary | None = None, config: DiagnoseConfig = DiagnoseConfig(),
              progress: Callable[[str], None] = lambda msg: None) -> Diagnosis:
@@ -326,7 +328,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         null = fit_lsq(_capped(Objective(fit_set, current)), max_iterations=config.screen_iterations, horizons_s=())
         hold_current = Objective(list(holdout), current).run_costs(current.as_vector())
         hold_null = Objective(list(holdout), null.params).run_costs(null.params.as_vector())
-        rss0, n = _cost(_capped(Objective(fit_set, null.params)), null.params)
+        rss0, n = 2.0 * null.cost, null.residual_count
         hold0_runs = hold_null if hold_null.sum() < hold_current.sum() else hold_current
         hold0 = float(hold0_runs.sum())
         candidates: list[Candidate] = []
@@ -348,7 +350,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             candidates.append(Candidate(name, augmented.value(effect.parameter.name), effect.parameter.unit,
                                         1.0 - hold1 / hold0 if hold0 > 0 else 0.0,
                                         float(np.mean(hold1_runs < hold0_runs)), float(dbic),
-                                        signature_match(effect, result.signature), rss1, hold1))
+                                        signature_match(effect, result.signature), rss1, hold1, augmented))
         candidates.sort(key=lambda c: c.held_out_improvement, reverse=True)
         if len(candidates) > 1 and candidates[1].held_out_improvement > 0.9 * candidates[0].held_out_improvement \
                 and candidates[1].signature_match > candidates[0].signature_match:
@@ -360,8 +362,8 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             break
         progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
         effect = library[best.name]
-        augmented = library.transform(current, {best.name: best.value})
-        final = fit_lsq(Objective(fit_set, augmented), max_iterations=config.fit_iterations)
+        # the candidate's refit on the runs' first seconds is already in the whole runs' basin
+        final = fit_lsq(Objective(fit_set, best.params), max_iterations=config.final_iterations, horizons_s=())
         result.fits.append(final)
         current = final.params
         interval = next((r for r in final.report if r.name == effect.parameter.name), None)

@@ -110,6 +110,7 @@ class FitResult:
     seconds: float
     method: str = "lsq"
     extra: dict = field(default_factory=dict)
+    residual_count: int = 0
 
 
 @contextmanager
@@ -246,7 +247,7 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     fitted = params0.from_unit(z)
     report, sv = _uncertainty(params0, fitted, lm.J, lm.r, z, objective.start_pose_sensitivity(lm.r))
     return FitResult(fitted, lm.status, lm.cost, 0.5 * float(r0 @ r0), log, report, sv, objective.evaluations,
-                     time.perf_counter() - t_start)
+                     time.perf_counter() - t_start, residual_count=lm.r.size)
 
 
 @dataclass
