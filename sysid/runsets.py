@@ -4,16 +4,23 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Sequence
 
+from cobra_model.errors import InputError
 from cobra_model.runs import Run, read_run
 from sysid.dataset import load_manifest
 
 
 def expand(paths: Sequence[str]) -> tuple[list[Path], list[Path]]:
-    """(train, validation) run paths: a ``manifest.json`` contributes its split, a run file trains."""
+    """(train, validation) run paths: a ``manifest.json`` contributes its split, a run file trains.
+
+    Raises:
+        InputError: naming a path that is neither a manifest nor a run (``NAME``, ``NAME.csv``).
+    """
     train: list[Path] = []
     validation: list[Path] = []
     for item in paths:
         p = Path(item)
+        if not (p.exists() or p.with_name(p.name + ".csv").exists()):
+            raise InputError(f"{item}: no such run CSV or dataset manifest.json")
         if p.suffix == ".json" and p.is_file():
             t, v = load_manifest(p)
             train += t

@@ -63,3 +63,14 @@ def test_diagnose_writes_report_json_and_a_usable_model(data, tmp_path, capsys):
     assert main(["simulate", "--from", str(hold), "--params", str(out / "augmented_params.json"),
                  "--out", str(sim)]) == 0
     assert np.isfinite(json.loads(sim.with_suffix(".json").read_text())["params"]["parameters"]["mu_c"]["value"])
+
+
+@pytest.mark.parametrize("command", ["fit", "diagnose"])
+def test_a_missing_run_or_manifest_is_named(command, tmp_path, capsys):
+    missing = tmp_path / "no_such_run.csv"
+    args = [command, str(missing), "--out", str(tmp_path / "out")]
+    assert main(args) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith(f"cobra {command}: error:"), err
+    assert str(missing) in err[0] and "no such run CSV or dataset manifest.json" in err[0]
+    assert not (tmp_path / "out").exists()                  # nothing written for bad input
