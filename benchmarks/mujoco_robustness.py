@@ -14,7 +14,10 @@ with the same parameter error (``TRUTH``) and one physical effect added in MuJoC
 
 Per case: 9 runs (3 per gait frequency 0.35/0.5/0.65 Hz, ``--duration`` s each, random start),
 the first 6 for training and the last 3 held out; ``diagnose`` starts from the nominal model with
-``FREE`` parameters free. Progress goes to stderr, the Markdown table to stdout.
+``FREE`` parameters free: the actuator parameters the robot's error is in and every ground
+parameter, because MuJoCo's contact (soft constraints, a friction cone) is another model than
+ours (a spring-damper with Stribeck friction) and only the fitted ground can stand in for it.
+Progress goes to stderr, the Markdown table to stdout.
 Run: ``.venv/bin/python benchmarks/mujoco_robustness.py [--cases none,frictionloss] [--duration 6]``.
 """
 from __future__ import annotations
@@ -36,7 +39,7 @@ from sysid.mujoco_runs import record_mujoco, twin_options
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
-FREE = ["mu_c", "joint_damping", "motor_km"]
+FREE = ["joint_damping", "motor_km", "k1", "k2", "mu_c", "mu_s", "mu_v", "v_s"]
 
 
 def _cases(base: TwinOptions) -> dict[str, tuple[str, dict[str, Any]]]:

@@ -7,9 +7,9 @@ true value by a factor drawn from +-[30 %, 50 %] (seeded; ``--guesses`` of them)
 guess least squares runs from it; the table gives, per parameter, the truth, the fitted value
 and its error (worst over the guesses), the 95 % interval of the first guess and whether it
 holds the truth, and the identifiability flag. Then PPO (the paper's method) runs from the
-first guess, and the held-out head-error gap each method closes is printed, with the time PPO
-needed to reach the least-squares held-out error. Run:
-``.venv/bin/python benchmarks/recovery.py [--guesses N] [--ppo-timesteps N]``.
+first guess once per seed of ``--ppo-seeds``, and the held-out head-error gap each run closes is
+printed, with the time PPO needed to reach the least-squares held-out error. Run:
+``.venv/bin/python benchmarks/recovery.py [--guesses N] [--ppo-timesteps N] [--ppo-seeds 0,1,2]``.
 """
 from __future__ import annotations
 
@@ -42,7 +42,14 @@ def main() -> None:
     parser.add_argument("--lsq-iterations", type=int, default=20, help="per horizon stage")
     parser.add_argument("--guesses", type=int, default=3)
     parser.add_argument("--ppo-timesteps", type=int, default=1024)
+    parser.add_argument("--ppo-seeds", default="0", help="comma-separated PPO seeds, one run each (default 0)")
     args = parser.parse_args()
+    try:
+        seeds = [int(s) for s in args.ppo_seeds.split(",") if s.strip()]
+    except ValueError:
+        parser.error(f"--ppo-seeds: expected comma-separated integers, got {args.ppo_seeds!r}")
+    if not seeds:
+        parser.error("--ppo-seeds: give at least one seed")
     rng = np.random.default_rng(11)
     model = CobraModel.load()
     sim = Simulator(model, TRUTH)
@@ -71,22 +78,25 @@ def main() -> None:
               f"{r.reason} |")
     from sysid.ppo import fit_ppo
     start, (lsq, lsq_wall) = guesses[0], fits[0]
-    t0 = time.perf_counter()
-    ppo = fit_ppo(Objective(train, start), total_timesteps=args.ppo_timesteps, seed=0)
-    ppo_wall = time.perf_counter() - t0
     before = final_head_errors(held, start)
+    after_lsq = final_head_errors(held, lsq.params)
+    rows: list[tuple[str, FitResult, float]] = [("least squares", lsq, lsq_wall)]
+    for seed in seeds:
+        t0 = time.perf_counter()
+        ppo = fit_ppo(Objective(train, start), total_timesteps=args.ppo_timesteps, seed=seed)
+        rows.append((f"PPO, seed {seed}", ppo, time.perf_counter() - t0))
+        reach = time_to_reach(held, ppo.extra["best_history"], after_lsq.sum())
+        print(f"PPO seed {seed} reached the least-squares held-out error (summed final head error "
+              f"{after_lsq.sum():.4f} m): " + (f"after {reach[0]:.0f} s ({reach[1]} timesteps)" if reach else
+                                               f"not within {rows[-1][2]:.0f} s ({ppo.extra['timesteps']} timesteps)"),
+              flush=True)
     print("\n| method (from guess 1) | wall [s] | evaluations | held-out final head error [m], guess -> "
           "fitted (per gait) | gap closed |")
     print("|---|---:|---:|---|---:|")
-    after_lsq = final_head_errors(held, lsq.params)
-    for name, res, wall in (("least squares", lsq, lsq_wall), ("PPO", ppo, ppo_wall)):
+    for name, res, wall in rows:
         after = after_lsq if res is lsq else final_head_errors(held, res.params)
         cells = ", ".join(f"{b:.3f} -> {a:.3f}" for b, a in zip(before, after))
         print(f"| {name} | {wall:.0f} | {res.evaluations} | {cells} | {100 * (1 - after.sum() / before.sum()):.0f} % |")
-    reach = time_to_reach(held, ppo.extra["best_history"], after_lsq.sum())
-    print("\nPPO reached the least-squares held-out error (summed final head error "
-          f"{after_lsq.sum():.4f} m): " + (f"after {reach[0]:.0f} s ({reach[1]} timesteps)" if reach else
-                                           f"not within {ppo_wall:.0f} s ({ppo.extra['timesteps']} timesteps)"))
 
 
 if __name__ == "__main__":
