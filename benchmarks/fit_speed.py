@@ -3,7 +3,7 @@
 Prints, in one run: objective evaluations per second one at a time vs batched; for each method
 the wall time, the objective evaluations it used and the held-out final head error per gait
 before (nominal) and after; and when PPO's best parameters first reached the least-squares
-held-out error (summed over the held-out runs), if they did. Run:
+held-out error (summed over the held-out runs), if they did. PPO's progress goes to stderr. Run:
 ``.venv/bin/python benchmarks/fit_speed.py [--lsq-iterations N] [--ppo-timesteps N]``.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ import time
 import numpy as np
 
 from cobra_model import ModelParameters
-from held_out import final_head_errors, time_to_reach
+from held_out import final_head_errors, ppo_progress, time_to_reach
 from sysid.dataset import DATA_DIR, load_manifest
 from sysid.lsq import fit_lsq
 from sysid.objective import Objective
@@ -53,7 +53,8 @@ def main() -> None:
     rows.append(("least squares (CasADi)", time.perf_counter() - t0, lsq))
     from sysid.ppo import fit_ppo
     t0 = time.perf_counter()
-    ppo = fit_ppo(Objective(train, nominal), total_timesteps=args.ppo_timesteps, seed=0)
+    ppo = fit_ppo(Objective(train, nominal), total_timesteps=args.ppo_timesteps, seed=0,
+                  progress=ppo_progress("PPO", args.ppo_timesteps))
     rows.append(("PPO (stable-baselines3)", time.perf_counter() - t0, ppo))
     held = {name: evaluate_held_out(validation, nominal, res.params) for name, _, res in rows}
     freqs = [h.freq_hz for h in next(iter(held.values()))]

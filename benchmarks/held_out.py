@@ -1,7 +1,8 @@
-"""Held-out measures shared by the identification benchmarks."""
+"""Shared by the identification benchmarks: held-out measures and PPO's progress line."""
 from __future__ import annotations
 
-from typing import Sequence
+import sys
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -26,3 +27,9 @@ def time_to_reach(runs: Sequence[Run], history: Sequence[tuple[float, int, Model
         if final_head_errors(runs, params).sum() <= target_m:
             return seconds, steps
     return None
+
+
+def ppo_progress(label: str, total: int) -> Callable[[int, float, float], None]:
+    """A ``fit_ppo`` progress callback: timesteps, best objective and mean episode reward, to stderr."""
+    return lambda steps, best, reward: print(f"{label}: {steps}/{total} timesteps, best objective {best:.4g}, "
+                                             f"mean episode reward {reward:.4g}", file=sys.stderr, flush=True)

@@ -8,7 +8,8 @@ guess least squares runs from it; the table gives, per parameter, the truth, the
 and its error (worst over the guesses), the 95 % interval of the first guess and whether it
 holds the truth, and the identifiability flag. Then PPO (the paper's method) runs from the
 first guess once per seed of ``--ppo-seeds``, and the held-out head-error gap each run closes is
-printed, with the time PPO needed to reach the least-squares held-out error. Run:
+printed, with the time PPO needed to reach the least-squares held-out error. PPO's progress goes
+to stderr. Run:
 ``.venv/bin/python benchmarks/recovery.py [--guesses N] [--ppo-timesteps N] [--ppo-seeds 0,1,2]``.
 """
 from __future__ import annotations
@@ -19,7 +20,7 @@ import time
 import numpy as np
 
 from cobra_model import CobraModel, ModelParameters
-from held_out import final_head_errors, time_to_reach
+from held_out import final_head_errors, ppo_progress, time_to_reach
 from integrators.simulator import Simulator
 from sysid.dataset import RunPlan, record
 from sysid.lsq import FitResult, fit_lsq
@@ -83,7 +84,8 @@ def main() -> None:
     rows: list[tuple[str, FitResult, float]] = [("least squares", lsq, lsq_wall)]
     for seed in seeds:
         t0 = time.perf_counter()
-        ppo = fit_ppo(Objective(train, start), total_timesteps=args.ppo_timesteps, seed=seed)
+        ppo = fit_ppo(Objective(train, start), total_timesteps=args.ppo_timesteps, seed=seed,
+                      progress=ppo_progress(f"PPO seed {seed}", args.ppo_timesteps))
         rows.append((f"PPO, seed {seed}", ppo, time.perf_counter() - t0))
         reach = time_to_reach(held, ppo.extra["best_history"], after_lsq.sum())
         print(f"PPO seed {seed} reached the least-squares held-out error (summed final head error "
