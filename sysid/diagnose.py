@@ -54,7 +54,8 @@ class DiagnoseConfig:
         final_iterations: least-squares iterations of the refit after an effect is named (whole
             runs only, from the candidate's refit: it starts near the minimum and is what the
             report's intervals and held-out gap come from).
-        screen_iterations: iterations of each candidate's one-parameter refit.
+        screen_iterations: iterations of each candidate's refit (its effect's parameter with the
+            free ones) and of the baseline refit without a new effect.
         profile_runs: training runs (spread over the gaits) that choose a candidate's start
             (:func:`screening_start`).
         min_improvement: held-out cost reduction a named effect must bring (fraction).
@@ -73,7 +74,8 @@ class DiagnoseConfig:
 
 @dataclass(frozen=True)
 class Candidate:
-    """One candidate's evidence."""
+    """One candidate's evidence, and its refitted parameter set (``params``: the model with the
+    effect after screening, from which the refit starts if the candidate is named)."""
 
     name: str
     value: float
