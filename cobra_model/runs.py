@@ -632,7 +632,9 @@ def _sidecar_path(csv_path: Path) -> Path:
     return csv_path.with_suffix(".json")
 
 
-def _csv_path(path: Path) -> Path:
+def run_csv_path(path: Path) -> Path:
+    """The CSV a run path names: ``NAME.csv`` itself, or for a sidecar ``NAME.json`` or a bare
+    ``NAME`` the ``NAME.csv`` beside it (what :func:`read_run` and :func:`write_run` accept)."""
     suffix = path.suffix.lower()
     if suffix == ".csv":
         return path
@@ -676,7 +678,7 @@ def read_run(path: str | Path) -> Run:
             cells, gaps in ``t``/``q_ref_*``/``q_*``, non-increasing time, a negative start time,
             non-unit quaternions, an empty file, or a bad sidecar.
     """
-    csv_path = _csv_path(Path(path))
+    csv_path = run_csv_path(Path(path))
     sidecar = _sidecar_path(csv_path)
     meta = read_meta(sidecar) if sidecar.exists() else {"format": FORMAT}
     table = read_csv_table(csv_path)
@@ -759,7 +761,7 @@ def write_run(run: Run, path: str | Path, *, force: bool = False) -> Path:
             written then).
         InputError: if the metadata cannot be written as JSON.
     """
-    csv_path = _csv_path(Path(path))
+    csv_path = run_csv_path(Path(path))
     sidecar = _sidecar_path(csv_path)
     if not force:
         for target in (csv_path, sidecar):

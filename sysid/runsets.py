@@ -5,7 +5,7 @@ from pathlib import Path
 from typing import Sequence
 
 from cobra_model.errors import InputError
-from cobra_model.runs import Run, read_run
+from cobra_model.runs import Run, read_run, run_csv_path
 from sysid.dataset import load_manifest
 
 
@@ -19,7 +19,7 @@ def expand(paths: Sequence[str]) -> tuple[list[Path], list[Path]]:
     validation: list[Path] = []
     for item in paths:
         p = Path(item)
-        if not (p.exists() or p.with_name(p.name + ".csv").exists()):
+        if not (p.exists() or run_csv_path(p).exists()):
             raise InputError(f"{item}: no such run CSV or dataset manifest.json")
         if p.suffix == ".json" and p.is_file():
             t, v = load_manifest(p)

@@ -9,9 +9,11 @@ import pytest
 
 from cobra_cli.main import main
 from cobra_model import ModelParameters, SidewindingGait
+from cobra_model.errors import InputError
 from cobra_model.runs import write_run
 from integrators.runs import simulate_gait
 from sysid.effects import EffectLibrary
+from sysid.runsets import expand
 
 TRUTH = ModelParameters.nominal().with_values(mu_c=0.22)
 
@@ -74,3 +76,12 @@ def test_a_missing_run_or_manifest_is_named(command, tmp_path, capsys):
     assert len(err) == 1 and err[0].startswith(f"cobra {command}: error:"), err
     assert str(missing) in err[0] and "no such run CSV or dataset manifest.json" in err[0]
     assert not (tmp_path / "out").exists()                  # nothing written for bad input
+
+
+def test_run_paths_resolve_as_read_run_resolves_them(tmp_path):
+    """A bare NAME or a sidecar NAME.json whose CSV exists is a run, as for ``read_run``."""
+    (tmp_path / "run.csv").write_text("t\n0\n")
+    for name in ("run", "run.csv", "run.json"):
+        assert expand([str(tmp_path / name)]) == ([tmp_path / name], [])
+    with pytest.raises(InputError, match="other"):
+        expand([str(tmp_path / "other")])
