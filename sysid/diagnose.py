@@ -37,7 +37,7 @@ from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run
 from integrators.runs import simulate_like
 from sysid.effects import Effect, EffectLibrary
-from sysid.lsq import FitResult, feasible, fit_lsq, forward_steps
+from sysid.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
 from sysid.objective import Objective
 from sysid.report import HeldOut, gap_summary, pair_held_out
 from sysid.signature import Signature, localise
@@ -186,8 +186,6 @@ def _costs(objective: Objective, X: np.ndarray) -> np.ndarray:
 
 #: Levenberg-Marquardt dampings of a profile's step, tried together (:func:`_profiles`).
 PROFILE_DAMPINGS: tuple[float, ...] = (1e-2, 1e-1, 1.0)
-#: Finite-difference step of a profile's Jacobian, in unit coordinates (as ``fit_lsq``'s default).
-FD_STEP = 1e-3
 
 
 def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: Sequence[Run]

@@ -51,6 +51,8 @@ from sysid.objective import Objective
 
 #: Horizons [s] of the continuation before the whole runs (see :func:`fit_lsq`).
 DEFAULT_HORIZONS_S: tuple[float, ...] = (1.5, 3.0, 6.0)
+#: Forward finite-difference step of the residual Jacobians, in unit coordinates.
+FD_STEP = 1e-3
 
 
 class FitStatus(str, Enum):
@@ -183,7 +185,7 @@ def _friction_row(params: ModelParameters) -> tuple[np.ndarray, float] | None:
 
 
 def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: float | None = None,
-            horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, fd_step: float = 1e-3, cost_tol: float = 1e-3,
+            horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, fd_step: float = FD_STEP, cost_tol: float = 1e-3,
             stage_cost_tol: float = 1e-2, step_tol: float = 1e-5,
             progress: Callable[[int, float, float], None] | None = None) -> FitResult:
     """Fit the objective's free parameters from its parameter set's current values.
