@@ -18,7 +18,15 @@ the first 6 for training and the last 3 held out; ``diagnose`` starts from the n
 parameter, because MuJoCo's contact (soft constraints, a friction cone) is another model than
 ours (a spring-damper with Stribeck friction) and only the fitted ground can stand in for it.
 Progress goes to stderr, the Markdown table to stdout.
-Run: ``.venv/bin/python benchmarks/mujoco_robustness.py [--cases none,frictionloss] [--duration 6]``.
+
+``--effect-sizes`` diagnoses nothing: it prints, per case, how much the MuJoCo effect changes
+the runs (each case's runs against the no-effect runs, same starts and noise) beside how much
+our simulator differs from MuJoCo with no effect, both at the true parameters (mean joint RMSE
+[rad] and final head distance [m] over the 9 runs). An effect smaller than that structural
+difference is hard to tell from it.
+
+Run: ``.venv/bin/python benchmarks/mujoco_robustness.py [--cases none,frictionloss] [--duration 6]
+[--effect-sizes]``.
 """
 from __future__ import annotations
 
@@ -33,8 +41,10 @@ import numpy as np
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.runs import Run
 from integrators.mujoco_twin import TwinOptions
+from integrators.runs import simulate_like
 from sysid.dataset import RunPlan
 from sysid.diagnose import DiagnoseConfig, diagnose
+from sysid.metrics import compare_runs
 from sysid.mujoco_runs import record_mujoco, twin_options
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
@@ -67,6 +77,30 @@ def make_data(options: TwinOptions, truth: ModelParameters, duration_s: float, m
     return runs[:6], runs[6:]
 
 
+def differences(a: list[Run], b: list[Run]) -> tuple[float, float]:
+    """Mean over run pairs of the joint RMSE [rad] and the final head distance [m] between ``a`` and ``b``."""
+    gaps = [compare_runs(x, y).to_json_dict() for x, y in zip(a, b)]
+    return (float(np.mean([g["joint_rmse_rad"]["mean"] for g in gaps])),
+            float(np.mean([g["head_final_error_m"] for g in gaps])))
+
+
+def effect_sizes(chosen: list[str], cases: dict[str, tuple[str, dict[str, Any]]], base: TwinOptions,
+                 truth: ModelParameters, duration_s: float, model: CobraModel) -> None:
+    """Print each case's effect size beside our simulator's difference from MuJoCo (see the module doc)."""
+    progress = lambda msg: print(f"[sizes] {msg}", file=sys.stderr, flush=True)  # noqa: E731
+    plain = sum(make_data(base, truth, duration_s, model, progress), [])
+    ours = differences(plain, [simulate_like(r, params=truth) for r in plain])
+    print("| MuJoCo effect | effect: joint RMSE [rad] | effect: final head [m] | our simulator vs MuJoCo "
+          "without it: joint RMSE [rad] | ... final head [m] |")
+    print("|---|---:|---:|---:|---:|", flush=True)
+    for case in chosen:
+        label, changes = cases[case]
+        runs = plain if not changes else sum(make_data(dataclasses.replace(base, **changes), truth, duration_s,
+                                                       model, progress), [])
+        q, head = differences(runs, plain)
+        print(f"| {label} | {q:.4f} | {head:.4f} | {ours[0]:.4f} | {ours[1]:.4f} |", flush=True)
+
+
 def main(argv: list[str] | None = None) -> int:
     truth = ModelParameters.nominal().with_values(**TRUTH)
     base = twin_options(truth)
@@ -75,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--cases", default=",".join(cases),
                         help=f"comma-separated subset of {', '.join(cases)} (default: all)")
     parser.add_argument("--duration", type=float, default=6.0, help="run length [s] (default 6)")
+    parser.add_argument("--effect-sizes", action="store_true",
+                        help="print each effect's size beside our simulator's difference from MuJoCo; no diagnosis")
     args = parser.parse_args(argv)
     chosen = [c.strip() for c in args.cases.split(",") if c.strip()]
     unknown = [c for c in chosen if c not in cases]
@@ -83,6 +119,9 @@ def main(argv: list[str] | None = None) -> int:
     if not args.duration > 1.0:
         parser.error(f"--duration must exceed the gait's 1 s smooth start, got {args.duration} s")
     model = CobraModel.load()
+    if args.effect_sizes:
+        effect_sizes(chosen, cases, base, truth, args.duration, model)
+        return 0
     start = ModelParameters.nominal().with_frozen(free=FREE)
     print("| MuJoCo effect | named effect(s) | held-out final head error before -> after [m] | wall [s] |")
     print("|---|---|---|---:|", flush=True)

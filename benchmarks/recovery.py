@@ -8,8 +8,9 @@ guess least squares runs from it; the table gives, per parameter, the truth, the
 and its error (worst over the guesses), the 95 % interval of the first guess and whether it
 holds the truth, and the identifiability flag. Then PPO (the paper's method) runs from the
 first guess once per seed of ``--ppo-seeds``, and the held-out head-error gap each run closes is
-printed, with the time PPO needed to reach the least-squares held-out error. PPO's progress goes
-to stderr. Run:
+printed, with the time PPO needed to reach the least-squares held-out error and the gap its best
+parameters had closed after 1024, 2048, ... timesteps (from the best-so-far history, so one run
+per seed gives the whole budget curve). PPO's progress goes to stderr. Run:
 ``.venv/bin/python benchmarks/recovery.py [--guesses N] [--ppo-timesteps N] [--ppo-seeds 0,1,2]``.
 """
 from __future__ import annotations
@@ -20,6 +21,7 @@ import time
 import numpy as np
 
 from cobra_model import CobraModel, ModelParameters
+from cobra_model.runs import Run
 from held_out import final_head_errors, ppo_progress, time_to_reach
 from integrators.simulator import Simulator
 from sysid.dataset import RunPlan, record
@@ -36,6 +38,23 @@ def guess(rng: np.random.Generator) -> ModelParameters:
     values = {p.name: float(np.clip(p.value * (1 + f), p.min, p.max)) for p, f in zip(TRUTH, factors)}
     values["mu_s"] = max(values["mu_s"], values["mu_c"])
     return TRUTH.with_values(**values)
+
+
+def budget_checkpoints(total: int) -> list[int]:
+    """1024, 2048, ... below ``total``, then ``total`` itself."""
+    out = [1024 * 2 ** k for k in range(16) if 1024 * 2 ** k < total]
+    return out + [total]
+
+
+def gap_closed_by(held: list[Run], start: ModelParameters, history: list[tuple[float, int, ModelParameters]],
+                  timesteps: int) -> float:
+    """Fraction of the held-out summed final head error of ``start`` closed by the best PPO
+    parameters found within ``timesteps`` (``history``: ``best_history`` of ``fit_ppo``)."""
+    best = start
+    for _, steps, params in history:
+        if steps <= timesteps:
+            best = params
+    return 1.0 - final_head_errors(held, best).sum() / final_head_errors(held, start).sum()
 
 
 def main() -> None:
@@ -92,6 +111,12 @@ def main() -> None:
               f"{after_lsq.sum():.4f} m): " + (f"after {reach[0]:.0f} s ({reach[1]} timesteps)" if reach else
                                                f"not within {rows[-1][2]:.0f} s ({ppo.extra['timesteps']} timesteps)"),
               flush=True)
+    checkpoints = budget_checkpoints(args.ppo_timesteps)
+    print("\n| PPO seed | " + " | ".join(f"gap closed after {c} timesteps" for c in checkpoints) + " |")
+    print("|---|" + "---:|" * len(checkpoints))
+    for name, res, _ in rows[1:]:
+        closed = [gap_closed_by(held, start, res.extra["best_history"], c) for c in checkpoints]
+        print(f"| {name.removeprefix('PPO, seed ')} | " + " | ".join(f"{100 * g:.0f} %" for g in closed) + " |")
     print("\n| method (from guess 1) | wall [s] | evaluations | held-out final head error [m], guess -> "
           "fitted (per gait) | gap closed |")
     print("|---|---:|---:|---|---:|")

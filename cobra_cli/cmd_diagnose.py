@@ -101,9 +101,11 @@ def _write_report(result: Diagnosis, out: Path) -> None:
     for i, round_ in enumerate(result.rounds, start=1):
         page.heading(f"Candidates, round {i}")
         page.table(["effect", "fitted value", "unit", "held-out cost reduction", "held-out runs improved", "dBIC",
-                    "signature match"],
-                   [[c.name, c.value, c.unit, c.held_out_improvement, c.runs_improved, c.delta_bic, c.signature_match]
-                    for c in round_])
+                    "signature match", "refitted without it"],
+                   [[c.name, c.value, c.unit, c.held_out_improvement, c.runs_improved, c.delta_bic, c.signature_match,
+                     "yes" if c.refit_without else "no"] for c in round_])
+        page.paragraph("Evidence is against the best fit without a new effect: the current model refitted "
+                       "alone, or a checked candidate's model refitted without its effect.")
     page.heading("Augmented model")
     fit = result.fits[-1]
     page.table(["name", "unit", "value", "95% low", "95% high", "note"],

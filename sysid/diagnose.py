@@ -19,6 +19,11 @@
    candidate by held-out improvement is named only when its held-out cost falls by at least
    ``min_improvement`` and ``dBIC < bic_threshold``; its signature match (how well the
    localisation numbers fit what the effect predicts) breaks near-ties and is reported.
+   Before it is named, its model is refitted once more **without** the effect (the effect
+   switched off, the other parameters from the candidate's refit, :func:`choose`): a candidate
+   whose start led its refit into a better basin of the other parameters owes its improvement
+   to the basin, not to the effect, and the refit without it finds that basin too. That fit
+   joins the baseline and the candidates are judged again against it.
    Otherwise the report says that no candidate explains the gap and describes the signature.
 5. **Add it and refit** all free parameters with the effect on the whole training runs, starting
    from the candidate's refit (screening uses each run's first ``SCREEN_HORIZON_S`` seconds, so
@@ -27,7 +32,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable, Sequence
 
 import numpy as np
@@ -75,7 +80,14 @@ class DiagnoseConfig:
 @dataclass(frozen=True)
 class Candidate:
     """One candidate's evidence, and its refitted parameter set (``params``: the model with the
-    effect after screening, from which the refit starts if the candidate is named)."""
+    effect after screening, from which the refit starts if the candidate is named).
+
+    ``train_cost`` is the sum of squared training residuals (screening horizon), ``held_out_cost``
+    the held-out one (whole runs) and ``held_out_runs`` its per-run terms; ``added`` counts the
+    parameters the effect adds; ``refit_without`` tells whether its model was refitted without
+    the effect (:func:`choose`). The evidence fields are relative to a :class:`Baseline`
+    (:meth:`judged`).
+    """
 
     name: str
     value: float
@@ -87,13 +99,44 @@ class Candidate:
     train_cost: float
     held_out_cost: float
     params: ModelParameters = field(compare=False, repr=False)
+    held_out_runs: np.ndarray = field(compare=False, repr=False)
+    added: int
+    refit_without: bool = False
 
     def to_json(self) -> dict:
         return {"name": self.name, "value": self.value, "unit": self.unit,
                 "held_out_improvement": self.held_out_improvement, "runs_improved": self.runs_improved,
                 "delta_bic": self.delta_bic,
                 "signature_match": self.signature_match, "train_cost": self.train_cost,
-                "held_out_cost": self.held_out_cost}
+                "held_out_cost": self.held_out_cost, "refit_without_effect": self.refit_without}
+
+    def judged(self, baseline: "Baseline", n: int) -> "Candidate":
+        """This candidate's evidence against ``baseline`` (``n`` training residuals, for dBIC)."""
+        hold0 = float(baseline.held_out_runs.sum())
+        dbic = n * np.log(max(self.train_cost, 1e-300) / max(baseline.train_rss, 1e-300)) + self.added * np.log(n)
+        return replace(self, held_out_improvement=1.0 - self.held_out_cost / hold0 if hold0 > 0 else 0.0,
+                       runs_improved=float(np.mean(self.held_out_runs < baseline.held_out_runs)),
+                       delta_bic=float(dbic))
+
+
+@dataclass(frozen=True)
+class Baseline:
+    """The model without a new effect that the candidates are measured against.
+
+    Attributes:
+        train_rss: sum of squared training residuals (screening horizon) of the best refit
+            without a new effect.
+        held_out_runs: held-out cost of each held-out run (whole runs) of the model with the
+            lowest held-out sum.
+    """
+
+    train_rss: float
+    held_out_runs: np.ndarray
+
+    def joined(self, other: "Baseline") -> "Baseline":
+        """The better of both: lowest training RSS, held-out costs of the lower held-out sum."""
+        held = other.held_out_runs if other.held_out_runs.sum() < self.held_out_runs.sum() else self.held_out_runs
+        return Baseline(min(self.train_rss, other.train_rss), held)
 
 
 @dataclass
@@ -275,6 +318,45 @@ def screening_start(effect: Effect, current: ModelParameters, unbent: ModelParam
     return best
 
 
+def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
+    """Candidates by held-out improvement, best first; of a near-tie (the second within 90 % of
+    the first's improvement) the better signature match comes first."""
+    ranked = sorted(candidates, key=lambda c: c.held_out_improvement, reverse=True)
+    if len(ranked) > 1 and ranked[1].held_out_improvement > 0.9 * ranked[0].held_out_improvement \
+            and ranked[1].signature_match > ranked[0].signature_match:
+        ranked[0], ranked[1] = ranked[1], ranked[0]
+    return ranked
+
+
+def significant(c: Candidate, config: DiagnoseConfig) -> bool:
+    """Whether ``c``'s evidence is enough to name it: held-out cost down by ``min_improvement``
+    on every held-out run, and ``dBIC < bic_threshold``."""
+    return (c.held_out_improvement >= config.min_improvement and c.runs_improved >= 1.0
+            and c.delta_bic < config.bic_threshold)
+
+
+def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: DiagnoseConfig,
+           refit_without: Callable[[Candidate], Baseline]) -> tuple[Candidate | None, list[Candidate]]:
+    """The candidate to name (or None) and all candidates, ranked, judged against the final baseline.
+
+    Only the best candidate (:func:`rank`) can be named, and only if it is :func:`significant`
+    against the baseline after its own model has been refitted without its effect
+    (``refit_without(candidate)``, joined into :class:`Baseline`). Every candidate is judged
+    again against the joined baseline; if the ranking's head changes (a near-tie that no longer
+    is), the new head is checked in the same way.
+    """
+    pending = list(candidates)
+    while True:
+        ranked = rank([c.judged(baseline, n) for c in pending])
+        if not ranked or not significant(ranked[0], config):
+            return None, ranked
+        top = ranked[0]
+        if top.refit_without:
+            return top, ranked
+        baseline = baseline.joined(refit_without(top))
+        pending = [replace(c, refit_without=True) if c.name == top.name else c for c in pending]
+
+
 def _cost_or_inf(objective: Objective, x: np.ndarray) -> float:
     """Sum of squared residuals at ``x``, infinite where the simulation diverges."""
     try:
@@ -326,11 +408,10 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         # a candidate is (a fit that had not yet converged must not make every effect look useful)
         progress(f"round {round_ + 1}: refitting without a new effect")
         null = fit_lsq(_capped(Objective(fit_set, current)), max_iterations=config.screen_iterations, horizons_s=())
+        n = null.residual_count
         hold_current = Objective(list(holdout), current).run_costs(current.as_vector())
         hold_null = Objective(list(holdout), null.params).run_costs(null.params.as_vector())
-        rss0, n = 2.0 * null.cost, null.residual_count
-        hold0_runs = hold_null if hold_null.sum() < hold_current.sum() else hold_current
-        hold0 = float(hold0_runs.sum())
+        baseline = Baseline(2.0 * null.cost, hold_null).joined(Baseline(np.inf, hold_current))
         candidates: list[Candidate] = []
         for name in remaining:
             effect = library[name]
@@ -342,23 +423,24 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             fit = fit_lsq(_capped(Objective(fit_set, trial)), max_iterations=config.screen_iterations,
                           horizons_s=())
             augmented = fit.params
-            rss1 = 2.0 * fit.cost
             hold1_runs = Objective(list(holdout), augmented).run_costs(augmented.as_vector())
-            hold1 = float(hold1_runs.sum())
-            k = len(trial.free_names) - len(current.free_names)
-            dbic = n * np.log(max(rss1, 1e-300) / max(rss0, 1e-300)) + k * np.log(n)
             candidates.append(Candidate(name, augmented.value(effect.parameter.name), effect.parameter.unit,
-                                        1.0 - hold1 / hold0 if hold0 > 0 else 0.0,
-                                        float(np.mean(hold1_runs < hold0_runs)), float(dbic),
-                                        signature_match(effect, result.signature), rss1, hold1, augmented))
-        candidates.sort(key=lambda c: c.held_out_improvement, reverse=True)
-        if len(candidates) > 1 and candidates[1].held_out_improvement > 0.9 * candidates[0].held_out_improvement \
-                and candidates[1].signature_match > candidates[0].signature_match:
-            candidates[0], candidates[1] = candidates[1], candidates[0]
+                                        0.0, 0.0, 0.0, signature_match(effect, result.signature),
+                                        2.0 * fit.cost, float(hold1_runs.sum()), augmented, hold1_runs,
+                                        len(trial.free_names) - len(current.free_names)))
+
+        def refit_without(c: Candidate, round_: int = round_) -> Baseline:
+            progress(f"round {round_ + 1}: checking {c.name}: refitting its model without it")
+            p = library[c.name].parameter  # switched off (its inactive value) and frozen
+            switched_off = c.params.with_values(**{p.name: p.value}).with_frozen([p.name])
+            alone = fit_lsq(_capped(Objective(fit_set, switched_off)), max_iterations=config.screen_iterations,
+                            horizons_s=())
+            hold = Objective(list(holdout), alone.params).run_costs(alone.params.as_vector())
+            return Baseline(2.0 * alone.cost, hold)
+
+        best, candidates = choose(candidates, baseline, n, config, refit_without)
         result.rounds.append(candidates)
-        best = candidates[0] if candidates else None
-        if (best is None or best.held_out_improvement < config.min_improvement or best.runs_improved < 1.0
-                or best.delta_bic >= config.bic_threshold):
+        if best is None:
             break
         progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
         effect = library[best.name]

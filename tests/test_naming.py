@@ -1,0 +1,85 @@
+"""How the discrepancy workflow names a candidate (sysid.diagnose.choose), on given fit results."""
+from __future__ import annotations
+
+import numpy as np
+
+from cobra_model import ModelParameters
+from sysid.diagnose import Baseline, Candidate, DiagnoseConfig, choose
+
+N = 4000  # training residuals
+BASELINE = Baseline(train_rss=10_000.0, held_out_runs=np.array([100.0, 100.0, 100.0]))
+
+
+def candidate(name: str, train_rss: float, held_out_runs: list[float], signature: float = 0.5) -> Candidate:
+    runs = np.array(held_out_runs)
+    return Candidate(name, 0.1, "1", 0.0, 0.0, 0.0, signature, train_rss, float(runs.sum()),
+                     ModelParameters.nominal(), runs, 1)
+
+
+class RefitWithout:
+    """Stands in for the refit without an effect: a fixed result per candidate, calls recorded."""
+
+    def __init__(self, results: dict[str, Baseline]):
+        self.results, self.calls = results, []
+
+    def __call__(self, c: Candidate) -> Baseline:
+        self.calls.append(c.name)
+        return self.results[c.name]
+
+
+def test_a_candidate_whose_refit_without_the_effect_fits_as_well_is_not_named():
+    """The 'mass' candidate ranks first, but its start found a better basin of the other
+    parameters: its model refitted without the mass fits the training runs as well (dBIC > 0
+    against it) and keeps most of the held-out gain. Nothing is named, and every candidate's
+    evidence is reported against that better baseline."""
+    basin = Baseline(5_990.0, np.array([80.0, 80.0, 80.0]))
+    refit = RefitWithout({"mass": basin})
+    cands = [candidate("mass", 6_000.0, [50.0, 50.0, 50.0]), candidate("friction", 7_000.0, [60.0, 55.0, 58.0])]
+    best, ranked = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    assert best is None and refit.calls == ["mass"]
+    assert [c.name for c in ranked] == ["mass", "friction"]
+    assert ranked[0].delta_bic > 0 and ranked[0].refit_without
+    assert np.isclose(ranked[1].held_out_improvement, 1 - 173.0 / 240.0)
+    assert np.isclose(ranked[1].delta_bic, N * np.log(7_000.0 / 5_990.0) + np.log(N))
+
+
+def test_a_check_that_improves_the_baseline_can_end_a_near_tie():
+    """Against the first baseline 'friction' is within 10 % of 'mass' with the better signature
+    match, so it is checked first; its refit without friction improves the baseline, against
+    which the two are no longer near-tied: mass ranks first, is checked and named."""
+    refit = RefitWithout({"friction": Baseline(9_000.0, np.array([66.0, 67.0, 67.0])),
+                          "mass": Baseline(9_500.0, np.array([90.0, 95.0, 92.0]))})
+    cands = [candidate("mass", 5_000.0, [50.0, 50.0, 50.0], signature=0.3),
+             candidate("friction", 6_000.0, [53.0, 53.0, 53.0], signature=0.9)]
+    best, ranked = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    assert refit.calls == ["friction", "mass"]
+    assert best is not None and best.name == "mass"
+    assert np.isclose(best.held_out_improvement, 1 - 150.0 / 200.0)
+    assert [c.name for c in ranked] == ["mass", "friction"]
+
+
+def test_a_real_effect_survives_its_check_with_unchanged_evidence():
+    refit = RefitWithout({"friction": Baseline(10_500.0, np.array([110.0, 105.0, 108.0]))})
+    best, _ = choose([candidate("friction", 3_000.0, [30.0, 20.0, 25.0])], BASELINE, N, DiagnoseConfig(), refit)
+    assert refit.calls == ["friction"]
+    assert best is not None and best.refit_without
+    assert np.isclose(best.held_out_improvement, 1 - 75.0 / 300.0)
+
+
+def test_nothing_significant_is_named_without_any_extra_refit():
+    """Too small a held-out gain, a run made worse, a training fit not worth its parameter."""
+    refit = RefitWithout({})
+    cands = [candidate("small", 9_000.0, [90.0, 90.0, 95.0]),
+             candidate("one_run_worse", 8_000.0, [10.0, 10.0, 101.0]),
+             candidate("bic", 9_999.0, [50.0, 50.0, 50.0])]
+    best, ranked = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    assert best is None and refit.calls == []
+    assert ranked[0].name == "one_run_worse"   # the best held-out improvement, yet not named
+
+
+def test_of_a_near_tie_the_better_signature_match_is_checked_first():
+    refit = RefitWithout({n: BASELINE for n in ("a", "b")})
+    cands = [candidate("a", 3_000.0, [30.0, 30.0, 30.0], signature=0.2),
+             candidate("b", 3_100.0, [31.0, 31.0, 31.0], signature=0.9)]
+    best, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    assert best is not None and best.name == "b" and refit.calls == ["b"]
