@@ -46,15 +46,13 @@ def budget_checkpoints(total: int) -> list[int]:
     return out + [total]
 
 
-def gap_closed_by(held: list[Run], start: ModelParameters, history: list[tuple[float, int, ModelParameters]],
+def gap_closed_by(held: list[Run], before_m: float, history: list[tuple[float, int, ModelParameters]],
                   timesteps: int) -> float:
-    """Fraction of the held-out summed final head error of ``start`` closed by the best PPO
-    parameters found within ``timesteps`` (``history``: ``best_history`` of ``fit_ppo``)."""
-    best = start
-    for _, steps, params in history:
-        if steps <= timesteps:
-            best = params
-    return 1.0 - final_head_errors(held, best).sum() / final_head_errors(held, start).sum()
+    """Fraction of the start's summed held-out final head error ``before_m`` [m] closed by the best
+    PPO parameters found within ``timesteps`` (``history``: ``best_history`` of ``fit_ppo``;
+    nothing closed if none was found by then)."""
+    found = [params for _, steps, params in history if steps <= timesteps]
+    return 1.0 - final_head_errors(held, found[-1]).sum() / before_m if found else 0.0
 
 
 def main() -> None:
@@ -115,7 +113,7 @@ def main() -> None:
     print("\n| PPO seed | " + " | ".join(f"gap closed after {c} timesteps" for c in checkpoints) + " |")
     print("|---|" + "---:|" * len(checkpoints))
     for name, res, _ in rows[1:]:
-        closed = [gap_closed_by(held, start, res.extra["best_history"], c) for c in checkpoints]
+        closed = [gap_closed_by(held, before.sum(), res.extra["best_history"], c) for c in checkpoints]
         print(f"| {name.removeprefix('PPO, seed ')} | " + " | ".join(f"{100 * g:.0f} %" for g in closed) + " |")
     print("\n| method (from guess 1) | wall [s] | evaluations | held-out final head error [m], guess -> "
           "fitted (per gait) | gap closed |")

@@ -329,8 +329,8 @@ def rank(candidates: Sequence[Candidate]) -> list[Candidate]:
 
 
 def significant(c: Candidate, config: DiagnoseConfig) -> bool:
-    """Whether ``c``'s evidence is enough to name it: held-out cost down by ``min_improvement``
-    on every held-out run, and ``dBIC < bic_threshold``."""
+    """Whether ``c``'s evidence is enough to name it: summed held-out cost down by at least
+    ``min_improvement``, every held-out run improved, and ``dBIC < bic_threshold``."""
     return (c.held_out_improvement >= config.min_improvement and c.runs_improved >= 1.0
             and c.delta_bic < config.bic_threshold)
 
@@ -364,6 +364,15 @@ def _cost_or_inf(objective: Objective, x: np.ndarray) -> float:
     except (RuntimeError, InputError):
         return float("inf")
     return float(r @ r)
+
+
+def _screen_refit(start: ModelParameters, fit_set: Sequence[Run], holdout: Sequence[Run],
+                  iterations: int) -> tuple[FitResult, np.ndarray]:
+    """A screening refit: ``start``'s free parameters on the fit runs' first
+    :data:`SCREEN_HORIZON_S` (no horizon continuation), and the refit's held-out cost per run
+    (whole runs)."""
+    fit = fit_lsq(_capped(Objective(fit_set, start)), max_iterations=iterations, horizons_s=())
+    return fit, Objective(list(holdout), fit.params).run_costs(fit.params.as_vector())
 
 
 def _spread(runs: Sequence[Run], n: int) -> list[Run]:
@@ -407,10 +416,9 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         # the baseline every candidate is measured against: the current model refitted alone as
         # a candidate is (a fit that had not yet converged must not make every effect look useful)
         progress(f"round {round_ + 1}: refitting without a new effect")
-        null = fit_lsq(_capped(Objective(fit_set, current)), max_iterations=config.screen_iterations, horizons_s=())
+        null, hold_null = _screen_refit(current, fit_set, holdout, config.screen_iterations)
         n = null.residual_count
         hold_current = Objective(list(holdout), current).run_costs(current.as_vector())
-        hold_null = Objective(list(holdout), null.params).run_costs(null.params.as_vector())
         baseline = Baseline(2.0 * null.cost, hold_null).joined(Baseline(np.inf, hold_current))
         candidates: list[Candidate] = []
         for name in remaining:
@@ -420,10 +428,8 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
             trial = screening_start(effect, current, unbent, profile_set, library)
             # from the fitted model no horizon continuation is needed: it already is in the basin
-            fit = fit_lsq(_capped(Objective(fit_set, trial)), max_iterations=config.screen_iterations,
-                          horizons_s=())
+            fit, hold1_runs = _screen_refit(trial, fit_set, holdout, config.screen_iterations)
             augmented = fit.params
-            hold1_runs = Objective(list(holdout), augmented).run_costs(augmented.as_vector())
             candidates.append(Candidate(name, augmented.value(effect.parameter.name), effect.parameter.unit,
                                         0.0, 0.0, 0.0, signature_match(effect, result.signature),
                                         2.0 * fit.cost, float(hold1_runs.sum()), augmented, hold1_runs,
@@ -433,9 +439,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             progress(f"round {round_ + 1}: checking {c.name}: refitting its model without it")
             p = library[c.name].parameter  # switched off (its inactive value) and frozen
             switched_off = c.params.with_values(**{p.name: p.value}).with_frozen([p.name])
-            alone = fit_lsq(_capped(Objective(fit_set, switched_off)), max_iterations=config.screen_iterations,
-                            horizons_s=())
-            hold = Objective(list(holdout), alone.params).run_costs(alone.params.as_vector())
+            alone, hold = _screen_refit(switched_off, fit_set, holdout, config.screen_iterations)
             return Baseline(2.0 * alone.cost, hold)
 
         best, candidates = choose(candidates, baseline, n, config, refit_without)
