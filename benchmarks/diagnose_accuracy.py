@@ -5,9 +5,11 @@ data are simulated with the effect(s) at a realistic magnitude plus parameter er
 like the reference dataset (quantised encoders, mocap noise and dropouts, jittered log), and
 diagnosed with the nominal model (``mu_c``, ``joint_damping`` and ``motor_km`` free and 9-60 %
 off). Also diagnoses the shipped reference dataset. ``--detection-limit`` instead halves each
-effect's magnitude until the workflow no longer names it first (one round per diagnosis), and
-prints the smallest magnitude named. Progress goes to stderr, the Markdown table to stdout. Run:
-``.venv/bin/python benchmarks/diagnose_accuracy.py [--cases NAME,...] [--detection-limit]``.
+effect's magnitude (its distance from the inactive value) until the workflow no longer names it
+first (one round per diagnosis), then bisects between the last magnitude named and the first
+missed, and prints where the limit lies. Progress goes to stderr, the Markdown tables to stdout.
+Run: ``.venv/bin/python benchmarks/diagnose_accuracy.py [--cases NAME,...] [--detection-limit
+[--halvings N] [--bisections N]]``.
 """
 from __future__ import annotations
 
@@ -31,7 +33,6 @@ MAGNITUDES = {"joint_coulomb_friction": 0.3, "backlash": 0.02, "actuator_delay":
 #: Effects hidden together.
 PAIRS = ("joint_coulomb_friction+anisotropic_ground_friction", "actuator_delay+link_mass_error")
 FREE = ["mu_c", "joint_damping", "motor_km"]
-#: Magnitude of an effect is "off" at this value (inactive); halving moves towards it.
 LIBRARY = EffectLibrary()
 
 
@@ -90,21 +91,45 @@ def accuracy(cases: list[str]) -> None:
         print(f"| {case.replace('+', ' + ')} | {mag} | {named} | {b:.4f} -> {a:.4f} | {wall:.0f} |", flush=True)
 
 
-def detection_limit(names: list[str], halvings: int) -> None:
+def detection_row(name: str, factor: float) -> bool:
+    """Diagnose ``name`` hidden at ``factor`` of its realistic magnitude, print its row, and
+    return whether it was named first."""
+    value = scaled(name, factor)
+    d, _ = run_case({name: value}, 1)
+    first = d.rounds[0][0] if d.rounds and d.rounds[0] else None
+    named = bool(d.effects) and d.effects[0]["name"] == name
+    b, a = d.gap_before["mean"]["head_final_error_m"], d.gap_after["mean"]["head_final_error_m"]
+    print(f"| {name} | {value:.4g} | {'yes' if named else 'no (' + (d.effects[0]['name'] if d.effects else 'none') + ')'}"
+          f" | {100 * first.held_out_improvement:.0f} % ({first.name}) | {b:.4f} -> {a:.4f} |", flush=True)
+    return named
+
+
+def detection_limit(names: list[str], halvings: int, bisections: int) -> None:
+    """Per effect: halve its magnitude up to ``halvings`` times; at the first one missed, bisect
+    ``bisections`` times between it and the last named (the realistic magnitude counts as named:
+    the accuracy table shows it is). Then a summary of where each limit lies."""
     print("| effect | magnitude | named first | held-out cost reduction | held-out final head error "
           "before -> after [m] |")
     print("|---|---:|---|---:|---|")
+    limits = []
     for name in names:
+        named_f, missed_f = 1.0, None
         for k in range(1, halvings + 1):
-            value = scaled(name, 0.5 ** k)
-            d, _ = run_case({name: value}, 1)
-            first = d.rounds[0][0] if d.rounds and d.rounds[0] else None
-            named = bool(d.effects) and d.effects[0]["name"] == name
-            b, a = d.gap_before["mean"]["head_final_error_m"], d.gap_after["mean"]["head_final_error_m"]
-            print(f"| {name} | {value:.4g} | {'yes' if named else 'no (' + (d.effects[0]['name'] if d.effects else 'none') + ')'}"
-                  f" | {100 * first.held_out_improvement:.0f} % ({first.name}) | {b:.4f} -> {a:.4f} |", flush=True)
-            if not named:
+            if detection_row(name, 0.5 ** k):
+                named_f = 0.5 ** k
+            else:
+                missed_f = 0.5 ** k
                 break
+        for _ in range(bisections if missed_f is not None else 0):
+            f = 0.5 * (named_f + missed_f)
+            if detection_row(name, f):
+                named_f = f
+            else:
+                missed_f = f
+        limits.append((name, scaled(name, named_f), None if missed_f is None else scaled(name, missed_f)))
+    print("\n| effect | weakest named | strongest missed |\n|---|---:|---:|")
+    for name, named, missed in limits:
+        print(f"| {name} | {named:.4g} | {'-' if missed is None else f'{missed:.4g}'} |")
 
 
 def main() -> None:
@@ -114,13 +139,18 @@ def main() -> None:
     parser.add_argument("--detection-limit", action="store_true",
                         help="halve each effect's magnitude until it is no longer named first")
     parser.add_argument("--halvings", type=int, default=4, help="most halvings per effect (--detection-limit)")
+    parser.add_argument("--bisections", type=int, default=2,
+                        help="bisections between the last magnitude named and the first missed (--detection-limit)")
     args = parser.parse_args()
+    for option in ("halvings", "bisections"):
+        if getattr(args, option) < 0:
+            parser.error(f"--{option} must be >= 0, got {getattr(args, option)}")
     if args.detection_limit:
         names = args.cases.split(",") if args.cases else list(MAGNITUDES)
         unknown = [name for name in names if name not in MAGNITUDES]
         if unknown:
             parser.error(f"--cases: unknown effect(s) {unknown}; known: {', '.join(MAGNITUDES)}")
-        detection_limit(names, args.halvings)
+        detection_limit(names, args.halvings, args.bisections)
         return
     cases = args.cases.split(",") if args.cases else ["none", *MAGNITUDES, *PAIRS, "reference"]
     for case in cases:

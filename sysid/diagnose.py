@@ -6,9 +6,11 @@
 3. **Try every candidate** of the :class:`sysid.effects.EffectLibrary`: add its parameter to the
    fitted model and refit it together with the free parameters (few iterations). The refit
    starts from the best of: the effect inactive, the effect at a small grid of values between
-   inactive and its bounds (a limit inactive at its nominal value starts where it acts), and a
-   profile of the effect on the model as it was before the base fit, whose free parameters may
-   have bent to mimic the effect (:func:`screening_start`).
+   inactive and its bounds (a torque limit at fractions of the torque the model demands, below
+   which alone it acts: :func:`torque_demand`), and a
+   profile of the effect on the fitted model with the parameters the base fit may have bent to
+   mimic the effect (the effect's ``bends`` groups) put back as they were before the fit
+   (:func:`screening_start`).
 4. **Rank and name**: a candidate's evidence is (a) the held-out residual cost of the augmented
    model relative to the current one (hold-out validation: the held-out runs take no part in
    any fit) and (b) the Bayesian information criterion on the training residuals,
@@ -37,10 +39,13 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from cobra_model.design import SERVO_GEAR_RATIO
 from cobra_model.errors import InputError
+from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run
-from integrators.runs import simulate_like
+from integrators.runs import rollout_like, simulate_like
+from integrators.simulator import Simulator
 from sysid.effects import Effect, EffectLibrary
 from sysid.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
 from sysid.objective import Objective
@@ -186,8 +191,13 @@ def signature_match(effect: Effect, sig: Signature) -> float:
 #: Fractions of the way from an effect's inactive value to each of its bounds tried as its
 #: screening start (the bound itself is not tried: there the effect is extreme).
 START_FRACTIONS: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2, 0.4, 0.6, 0.8)
-#: The coarser fractions at which the unbent model is profiled (:func:`screening_start`).
+#: The coarser fractions at which the :func:`unbent` model is profiled (:func:`screening_start`).
 PROFILE_FRACTIONS: tuple[float, ...] = (0.2, 0.4, 0.6, 0.8)
+#: Fractions of the largest motor torque the model demands tried as a torque limit's screening
+#: start, and the coarser ones of its profile (an effect with ``acts_below_demand``). Finest
+#: near the peak: the cost valley of a limit is a few tenths of a N m wide just below it.
+DEMAND_FRACTIONS: tuple[float, ...] = (0.95, 0.9, 0.85, 0.8, 0.75, 0.7, 0.6, 0.5, 0.4)
+DEMAND_PROFILE_FRACTIONS: tuple[float, ...] = (0.9, 0.8, 0.7, 0.6)
 #: Longest stretch of each run [s] that the screening (grid, profiles, candidate refits and
 #: their training costs) uses; the held-out comparison always uses the whole runs.
 SCREEN_HORIZON_S = 6.0
@@ -200,16 +210,36 @@ def _capped(objective: Objective, horizon_s: float = SCREEN_HORIZON_S) -> Object
     return objective
 
 
-def start_grid(effect: Effect, fractions: Sequence[float] = START_FRACTIONS) -> list[float]:
+def torque_demand(params: ModelParameters, runs: Sequence[Run], horizon_s: float = SCREEN_HORIZON_S) -> float:
+    """The largest motor torque [N m] (``r Km i`` at a joint, before any limit) that the model
+    with ``params`` demands on the runs' first ``horizon_s`` [s], every physics step."""
+    sim = Simulator(CobraModel.load(), params)
+    rkm = SERVO_GEAR_RATIO * params.motor_km
+    peaks = [np.abs(rkm * rollout_like(sim, r.slice_time(float(r.t[0]), float(r.t[0]) + horizon_s),
+                                       record_every=1).current).max() for r in runs]
+    return float(max(peaks))
+
+
+def start_grid(effect: Effect, demand_nm: float | None = None, coarse: bool = False) -> list[float]:
     """Values of the effect's parameter tried as its screening start (see :func:`screening_start`).
 
-    From the inactive value towards each bound that differs from it, at ``fractions`` of the
-    way (in unit coordinates: logarithmic for log-scaled
-    parameters). A limit such as ``torque_limit``, inactive at the stall torque, is only
-    active below the largest torque the gait demands, and its cost is flat above it: a start
-    on the flat part never moves.
+    From the inactive value towards each bound that differs from it, at :data:`START_FRACTIONS`
+    of the way (:data:`PROFILE_FRACTIONS` if ``coarse``; in unit coordinates: logarithmic for
+    log-scaled parameters). An effect that ``acts_below_demand`` (a torque limit: inactive at
+    the stall torque, its cost flat above the largest torque the gait demands, where a start
+    never moves) instead takes :data:`DEMAND_FRACTIONS` (:data:`DEMAND_PROFILE_FRACTIONS`) of
+    ``demand_nm`` (:func:`torque_demand`), inside its bounds.
+
+    Raises:
+        InputError: naming the effect if it acts below the demand and ``demand_nm`` is None.
     """
     p = effect.parameter
+    if effect.acts_below_demand:
+        if demand_nm is None:
+            raise InputError(f"effect {effect.name!r} acts below the torque demand: start_grid needs demand_nm")
+        fractions = DEMAND_PROFILE_FRACTIONS if coarse else DEMAND_FRACTIONS
+        return sorted({float(np.clip(f * demand_nm, p.min, p.max)) for f in fractions}, reverse=True)
+    fractions = PROFILE_FRACTIONS if coarse else START_FRACTIONS
     z0 = float(p.to_unit_interval(p.value))
     out = []
     for end in (0.0, 1.0):
@@ -282,31 +312,46 @@ def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: 
             [trial.from_unit(trials[j * len(PROFILE_DAMPINGS) + c]) for j, c in enumerate(pick)])
 
 
-def screening_start(effect: Effect, current: ModelParameters, unbent: ModelParameters, runs: Sequence[Run],
+def unbent(effect: Effect, current: ModelParameters, before: ModelParameters) -> ModelParameters:
+    """``current`` with the free parameters of ``before`` that ``effect`` bends (its
+    :attr:`~sysid.effects.Effect.bends` groups; all of them if it names none) put back to their
+    values in ``before``, the parameter set the base fit started from. Effects found so far and
+    the parameters of other groups keep their fitted values."""
+    names = [p for p in before.free_names if not effect.bends or before[p].group in effect.bends]
+    return current.with_values(**{p: before.value(p) for p in names})
+
+
+def screening_start(effect: Effect, current: ModelParameters, before: ModelParameters, runs: Sequence[Run],
                     library: EffectLibrary) -> ModelParameters:
     """Where a candidate's screening refit starts: the effect added to one of two bases.
 
     - ``current``, the fitted model, with the effect inactive or at the grid value of lowest
       cost (inactive when every grid value makes the fit worse);
-    - ``unbent``, the model before the base fit bent its free parameters towards the missing
-      effect, with the effect held at each of the coarser :data:`PROFILE_FRACTIONS` while the
-      free parameters take a Gauss-Newton step (:func:`_profiles`). A fit that mimicked a
-      torque limit by a weaker, more damped motor only shows the limit from there: with the
-      limit added to the bent motor the cost rises at every grid value.
+    - the model :func:`unbent` from the parameters the effect bends (``before``: the parameter
+      set the base fit started from), with the effect held at each of the coarser values
+      (``start_grid(..., coarse=True)``) while the free parameters take a Gauss-Newton step
+      (:func:`_profiles`). A fit that mimicked a torque limit by a weaker, more damped motor
+      only shows the limit from there: with the limit added to the bent motor the cost rises at
+      every grid value. For a limit only the motor is put back: a ground fitted to another
+      contact model (MuJoCo's runs) is kept, as one Gauss-Newton step from the nominal ground
+      does not reach it.
 
+    A torque limit's values are fractions of what each base demands (:func:`torque_demand`).
     The start of lowest cost on ``runs`` (their first :data:`SCREEN_HORIZON_S`) wins. Grid
     values at which the effect changes nothing (a limit above what the gait demands) are
     profiled once.
     """
     name = effect.parameter.name
-    values = [effect.parameter.value, *start_grid(effect)]
+    base = unbent(effect, current, before)
+    demands = (torque_demand(current, runs), torque_demand(base, runs)) if effect.acts_below_demand else (None, None)
+    values = [effect.parameter.value, *start_grid(effect, demand_nm=demands[0])]
     trial = library.transform(current, {effect.name: values[0]})
     costs = _costs(_capped(Objective(runs, trial)), np.array([trial.with_values(**{name: v}).as_vector()
                                                               for v in values]))
     k = int(np.argmin(costs))
     best, best_cost = trial.with_values(**{name: values[k]}), costs[k]
-    coarse = start_grid(effect, PROFILE_FRACTIONS)
-    unbent_trial = library.transform(unbent, {effect.name: coarse[0]})
+    coarse = start_grid(effect, demand_nm=demands[1], coarse=True)
+    unbent_trial = library.transform(base, {effect.name: coarse[0]})
     raw = _costs(_capped(Objective(runs, unbent_trial)),
                  np.array([unbent_trial.with_values(**{name: v}).as_vector() for v in coarse]))
     distinct = [v for n, v in enumerate(coarse) if np.isfinite(raw[n]) and raw[n] not in set(raw[:n])]
@@ -411,8 +456,6 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     remaining = list(library.names)
     profile_set = _spread(fit_set, config.profile_runs)
     for round_ in range(config.max_effects):
-        # the free parameters as they were before any fit; effects found so far kept
-        unbent = current.with_values(**{p: start.value(p) for p in start.free_names})
         # the baseline every candidate is measured against: the current model refitted alone as
         # a candidate is (a fit that had not yet converged must not make every effect look useful)
         progress(f"round {round_ + 1}: refitting without a new effect")
@@ -426,7 +469,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             progress(f"round {round_ + 1}: trying {name}")
             # the effect's parameter and the current free ones refit together: the current fit
             # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
-            trial = screening_start(effect, current, unbent, profile_set, library)
+            trial = screening_start(effect, current, start, profile_set, library)
             # from the fitted model no horizon continuation is needed: it already is in the basin
             fit, hold1_runs = _screen_refit(trial, fit_set, holdout, config.screen_iterations)
             augmented = fit.params

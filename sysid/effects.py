@@ -41,6 +41,14 @@ class Effect:
         signature: the residual signature it predicts, in words.
         features: the localisation numbers (keys of :class:`sysid.signature.Signature`) whose
             magnitude indicates it, with a sign (+1: large is evidence, -1: small is evidence).
+        bends: the parameter groups (``"actuator"``, ``"ground"``) that a fit of a model lacking
+            the effect bends to mimic it; empty: any free parameter. The screening profiles the
+            effect on the fitted model with just these put back to their values before the fit
+            (``sysid.diagnose.screening_start``).
+        acts_below_demand: the parameter is a limit on the joints' motor torque [N m], which
+            changes nothing above the largest torque the model demands and acts sharply just
+            below it; its screening starts are placed at fractions of that demand
+            (``sysid.diagnose.start_grid``) instead of fractions of its range.
     """
 
     name: str
@@ -49,6 +57,8 @@ class Effect:
     enters: str
     signature: str
     features: tuple[tuple[str, float], ...]
+    bends: tuple[str, ...] = ()
+    acts_below_demand: bool = False
 
     def parameters(self, value: float | None = None, *, frozen: bool = False) -> list[Parameter]:
         """The effect's parameter at ``value`` (default: its fitting start), free unless ``frozen``."""
@@ -85,7 +95,8 @@ EFFECTS: tuple[Effect, ...] = (
               "motor torque limit (voltage/current)", group="torque_saturation"),
            4.0, "the motor torque is clipped at the limit",
            "joint residuals grow with commanded effort; amplitudes fall short at the fast, loaded joints",
-           (("r_effort", 1.0), ("amplitude_ratio", -1.0))),
+           (("r_effort", 1.0), ("amplitude_ratio", -1.0)),
+           bends=("actuator",), acts_below_demand=True),  # bends: a weaker, more damped motor (measured)
     Effect("anisotropic_ground_friction",
            _p("lateral_friction_ratio", "1", 1.0, 0.2, 5.0, "sideways / along-body friction ratio",
               log=True, group="anisotropic_ground_friction"),

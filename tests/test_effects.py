@@ -78,14 +78,19 @@ def test_localisation_on_analytic_residuals():
 @pytest.mark.parametrize("effect", EFFECTS, ids=lambda e: e.name)
 def test_screening_starts_lie_between_inactive_and_the_bounds(effect):
     """Every effect is tried from values where it acts, on each side it can act, within its
-    bounds; a limit inactive at the stall torque is also tried well below the 2-4 N m a
-    sidewinding joint demands."""
+    bounds; a torque limit is tried at fractions of the torque the model demands, finest just
+    below it, where a limit starts to act."""
     from sysid.diagnose import start_grid
 
     p = effect.parameter
-    grid = np.array(start_grid(effect))
-    assert np.all((grid >= p.min) & (grid <= p.max)) and np.all(grid != p.value)
-    sides = {np.sign(v - p.value) for v in grid}
-    assert sides == {s for s, bound in ((-1.0, p.min), (1.0, p.max)) if bound != p.value}
-    if effect.name == "torque_saturation":
-        assert grid.min() < 2.5
+    demand = 4.0 if effect.acts_below_demand else None
+    for coarse in (False, True):
+        grid = np.array(start_grid(effect, demand_nm=demand, coarse=coarse))
+        assert np.all((grid >= p.min) & (grid <= p.max)) and np.all(grid != p.value)
+        sides = {np.sign(v - p.value) for v in grid}
+        assert sides == {s for s, bound in ((-1.0, p.min), (1.0, p.max)) if bound != p.value}
+    if effect.acts_below_demand:
+        grid = np.array(start_grid(effect, demand_nm=demand))
+        assert grid.max() < demand and grid.max() >= 0.9 * demand and grid.min() < 2.0
+        with pytest.raises(InputError, match=effect.name):
+            start_grid(effect)

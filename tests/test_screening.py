@@ -7,7 +7,7 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.dataset import RunPlan, record
-from sysid.diagnose import screening_start
+from sysid.diagnose import screening_start, torque_demand, unbent
 from sysid.effects import EffectLibrary
 from sysid.lsq import fit_lsq
 from sysid.objective import Objective
@@ -32,10 +32,10 @@ def cost(runs: list, params: ModelParameters) -> float:
 
 
 @pytest.mark.slow
-def test_a_limit_the_fit_bent_the_motor_to_mimic_starts_from_the_unbent_model():
+def test_a_limit_the_fit_bent_the_motor_to_mimic_starts_from_the_unbent_motor():
     """A 2.5 N m torque limit hidden in the data: the fit without it weakens the motor, after which
-    adding any limit only raises the cost; the start must come from the unbent model, below the
-    limits the gait demands, and already beat the bent fit."""
+    adding any limit only raises the cost; the start must come from the fitted model with its
+    motor put back, below the limits the gait demands, and already beat the bent fit."""
     runs = measured(LIBRARY.transform(TRUTH, {"torque_saturation": 2.5}, frozen=True))
     bent = fit_lsq(Objective(runs, NOMINAL), max_iterations=6).params
     assert bent.value("motor_km") < 0.9 * TRUTH.value("motor_km")     # the compensation this guards against
@@ -52,3 +52,29 @@ def test_an_effect_absent_from_the_data_starts_inactive():
     runs = measured(TRUTH)
     start = screening_start(LIBRARY["backlash"], TRUTH, NOMINAL, runs, LIBRARY)
     assert start.value("backlash") == LIBRARY["backlash"].parameter.value
+
+
+def test_unbent_puts_back_only_the_groups_an_effect_bends():
+    """A torque limit is mimicked by the motor: only the actuator parameters return to their
+    values before the fit, the fitted ground stays; an effect naming no group puts back all."""
+    before = NOMINAL
+    fitted = NOMINAL.with_values(mu_c=0.2, joint_damping=0.4, motor_km=0.007)
+    motor = unbent(LIBRARY["torque_saturation"], fitted, before)
+    assert (motor.value("joint_damping"), motor.value("motor_km")) == (before.value("joint_damping"),
+                                                                      before.value("motor_km"))
+    assert motor.value("mu_c") == 0.2
+    everything = unbent(LIBRARY["backlash"], fitted, before)
+    assert np.array_equal(everything.as_vector(), before.as_vector())
+    assert motor.free_names == fitted.free_names
+
+
+@pytest.mark.slow
+def test_a_limit_acts_just_below_the_torque_demand_and_not_above_it():
+    """The demand is the largest motor torque the model asks for: a limit 1 % above it leaves
+    the runs as they were, one 5 % below changes them."""
+    runs = measured(TRUTH)
+    demand = torque_demand(TRUTH, runs)
+    assert 1.0 < demand < LIBRARY["torque_saturation"].parameter.value
+    free = cost(runs, TRUTH)
+    assert cost(runs, LIBRARY.transform(TRUTH, {"torque_saturation": 1.01 * demand})) == pytest.approx(free, rel=1e-9)
+    assert cost(runs, LIBRARY.transform(TRUTH, {"torque_saturation": 0.95 * demand})) > 1.05 * free
