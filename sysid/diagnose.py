@@ -210,14 +210,13 @@ def _capped(objective: Objective, horizon_s: float = SCREEN_HORIZON_S) -> Object
     return objective
 
 
-def torque_demand(params: ModelParameters, runs: Sequence[Run], horizon_s: float = SCREEN_HORIZON_S) -> float:
+def torque_demand(params: ModelParameters, runs: Sequence[Run]) -> float:
     """The largest motor torque [N m] (``r Km i`` at a joint, before any limit) that the model
-    with ``params`` demands on the runs' first ``horizon_s`` [s], every physics step."""
+    with ``params`` demands over ``runs``, every physics step (the screening passes the runs it
+    costs on: their first :data:`SCREEN_HORIZON_S`)."""
     sim = Simulator(CobraModel.load(), params)
     rkm = SERVO_GEAR_RATIO * params.motor_km
-    peaks = [np.abs(rkm * rollout_like(sim, r.slice_time(float(r.t[0]), float(r.t[0]) + horizon_s),
-                                       record_every=1).current).max() for r in runs]
-    return float(max(peaks))
+    return float(max(np.abs(rkm * rollout_like(sim, r, record_every=1).current).max() for r in runs))
 
 
 def start_grid(effect: Effect, demand_nm: float | None = None, coarse: bool = False) -> list[float]:
@@ -343,11 +342,12 @@ def screening_start(effect: Effect, current: ModelParameters, before: ModelParam
     """
     name = effect.parameter.name
     base = unbent(effect, current, before)
-    demands = (torque_demand(current, runs), torque_demand(base, runs)) if effect.acts_below_demand else (None, None)
+    trial = library.transform(current, {effect.name: effect.parameter.value})
+    objective = _capped(Objective(runs, trial))
+    demands = ((torque_demand(current, objective.runs), torque_demand(base, objective.runs))
+               if effect.acts_below_demand else (None, None))
     values = [effect.parameter.value, *start_grid(effect, demand_nm=demands[0])]
-    trial = library.transform(current, {effect.name: values[0]})
-    costs = _costs(_capped(Objective(runs, trial)), np.array([trial.with_values(**{name: v}).as_vector()
-                                                              for v in values]))
+    costs = _costs(objective, np.array([trial.with_values(**{name: v}).as_vector() for v in values]))
     k = int(np.argmin(costs))
     best, best_cost = trial.with_values(**{name: values[k]}), costs[k]
     coarse = start_grid(effect, demand_nm=demands[1], coarse=True)
