@@ -80,5 +80,6 @@ def run(args: argparse.Namespace) -> int:
     print("\ndiscrepancy workflow (cobra diagnose) on the training runs, judged on the held-out runs:")
     from cobra_cli import cmd_diagnose
     diag_args = argparse.Namespace(runs=[str(manifest)], holdout=[], out=args.out / "diagnosis", json=False,
-                                   max_effects=2, params=None, free=None, fit_runs=6, force=args.force)
+                                   max_effects=2, params=None, free=None, fit_runs=6, force=args.force,
+                                   no_check=False)
     return cmd_diagnose.run(diag_args)

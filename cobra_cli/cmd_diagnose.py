@@ -3,8 +3,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 from pathlib import Path
 
+from cobra_cli.cmd_check import check_before_fit
 from cobra_cli.common import check_writable, load_params
 from cobra_model.errors import InputError
 from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
@@ -32,6 +34,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help=f"training runs used by the fits, spread over the gaits (default "
                         f"{DiagnoseConfig.fit_runs}; 0 = all)")
     p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
+    p.add_argument("--no-check", action="store_true", help="skip the data check before fitting (gaps, "
+                   "dropouts, saturated joints, parameters the runs cannot pin down, which it freezes)")
     p.set_defaults(func=run)
 
 
@@ -51,6 +55,10 @@ def run(args: argparse.Namespace) -> int:
     if not train_paths or not val_paths:
         raise InputError("diagnose needs training runs and held-out runs (--holdout, or a manifest's validation)")
     train, holdout = read_runs(train_paths), read_runs(val_paths)
+    check = None
+    if not args.no_check:
+        # with --json, stdout carries only the JSON
+        start, check = check_before_fit(train, start, held_out=holdout, out=sys.stderr if args.json else None)
     config = DiagnoseConfig(max_effects=args.max_effects, fit_runs=args.fit_runs)
     from tqdm import tqdm
     bar = tqdm(desc="diagnose", unit="step", leave=False, disable=None)
@@ -67,6 +75,7 @@ def run(args: argparse.Namespace) -> int:
     result.params_after.save(args.out / "augmented_params.json", force=True)
     doc = result.to_json()
     doc["augmented_params"] = str(args.out / "augmented_params.json")
+    doc["data_check"] = check.to_json_dict() if check is not None else None
     (args.out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
     _write_report(result, args.out)
     if args.json:

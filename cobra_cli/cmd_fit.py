@@ -6,9 +6,12 @@ import dataclasses
 import json
 from pathlib import Path
 
-from cobra_cli.common import check_writable, load_params
+from cobra_cli.cmd_check import check_before_fit
+from cobra_cli.common import check_writable, load_params, parse_names
 from cobra_model.errors import InputError
+from cobra_model.parameters import ModelParameters
 from sysid.executor import make_executor
+from sysid.lsq import FitResult
 from sysid.objective import Objective, Weights
 from sysid.runsets import expand, read_runs
 
@@ -36,16 +39,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="fitted parameter file (JSON)")
     p.add_argument("--report", metavar="DIR", help="write report.html with figures into DIR")
     p.add_argument("--force", action="store_true", help="overwrite --out and report files")
+    p.add_argument("--no-check", action="store_true", help="skip the data check before fitting (gaps, "
+                   "dropouts, saturated joints, parameters the runs cannot pin down, which it freezes)")
     p.set_defaults(func=run)
 
 
-def _names(text: str | None, option: str) -> list[str]:
-    if not text:
-        return []
-    names = [n.strip() for n in text.split(",") if n.strip()]
-    if not names:
-        raise InputError(f"{option}: expected comma-separated parameter names")
-    return names
+def bound_warnings(result: FitResult, fitted: ModelParameters) -> list[str]:
+    """One warning per parameter the fit left at a bound (the report's ``at_bound``), naming the bound."""
+    lines = []
+    for r in result.report:
+        if not r.at_bound:
+            continue
+        p = fitted[r.name]
+        lower = float(p.to_unit_interval(p.value)) < 0.5
+        bound = p.min if lower else p.max
+        unit = "" if p.unit in ("", "1") else f" {p.unit}"
+        lines.append(f"WARNING: {r.name} ended at its {'lower' if lower else 'upper'} bound {bound:.4g}{unit}: "
+                     "the data push it beyond its range")
+    return lines
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         if report_dir.exists():
             check_writable(report_dir / "report.html", args.force)
     start = load_params(args.params)
-    free, frozen = _names(args.free, "--free"), _names(args.frozen, "--frozen")
+    free, frozen = parse_names(args.free, "--free"), parse_names(args.frozen, "--frozen")
     try:
         params = start.with_frozen(frozen=frozen, free=free or None)
     except InputError as exc:
@@ -68,6 +79,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("no training runs given")
     train = read_runs(train_paths)
     validation = read_runs(val_paths)
+    check = None
+    if not args.no_check:
+        params, check = check_before_fit(train, params, held_out=validation)
     executor = make_executor(args.executor, workers=args.workers, ray_address=args.ray_address)
     objective = Objective(train, params, Weights(), executor=executor)
     print(f"fitting {', '.join(params.free_names)} on {len(train)} runs ({len(validation)} held out) "
@@ -104,7 +118,12 @@ def run(args: argparse.Namespace) -> int:
                   "seconds": result.seconds, "train_runs": [str(p) for p in train_paths],
                   "intervals": {r.name: [r.ci_low, r.ci_high] for r in result.report},
                   "identifiable": {r.name: r.reason for r in result.report},
-                  "log": [dataclasses.asdict(entry) for entry in result.log]}
+                  "intervals_iid": {r.name: [r.ci_low_iid, r.ci_high_iid] for r in result.report},
+                  "interval_method": result.interval_method,
+                  "residual_whiteness": (result.residual_whiteness.to_json_dict()
+                                         if result.residual_whiteness is not None else None),
+                  "log": [dataclasses.asdict(entry) for entry in result.log],
+                  "data_check": check.to_json_dict() if check is not None else None}
     out.write_text(json.dumps(doc, indent=2, default=float) + "\n")
     print(f"{result.status.value} after {result.evaluations} evaluations in {result.seconds:.1f} s; "
           f"cost {result.initial_cost:.4g} -> {result.cost:.4g}")
@@ -112,6 +131,13 @@ def run(args: argparse.Namespace) -> int:
     for r in result.report:
         ci = f"[{r.ci_low:.4g}, {r.ci_high:.4g}]"
         print(f"  {r.name:16s} {r.nominal:10.4g} {r.initial:10.4g} {r.value:10.4g} {ci:>25s}  {r.reason}")
+    if result.interval_method:
+        print(f"  intervals: {result.interval_method}")
+    if result.residual_whiteness is not None:
+        print(f"{'' if result.residual_whiteness.white else 'WARNING: '}residuals: "
+              f"{result.residual_whiteness.verdict}")
+    for line in bound_warnings(result, fitted):
+        print(line)
     print(f"wrote {out}")
     if validation:
         from sysid.report import HtmlReport, evaluate_held_out, held_out_figures
@@ -129,6 +155,10 @@ def run(args: argparse.Namespace) -> int:
                          "yes" if r.at_bound else "", r.reason] for r in result.report])
             page.paragraph(f"{result.evaluations} objective evaluations, {result.seconds:.1f} s, cost "
                            f"{result.initial_cost:.4g} -> {result.cost:.4g}.")
+            if result.interval_method:
+                page.paragraph(f"Intervals: {result.interval_method}.")
+            if result.residual_whiteness is not None:
+                page.paragraph(f"Residuals: {result.residual_whiteness.verdict}.")
             if result.log:
                 page.heading("Iteration log")
                 page.table(["iteration", "horizon [s]", "cost", "trial cost", "accepted", "damping", "evaluations",

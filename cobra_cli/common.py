@@ -29,3 +29,13 @@ def check_run_writable(path: str | Path, force: bool) -> Path:
         raise InputError(f"--out {path}: a run file must end in .csv (its sidecar is NAME.json)")
     check_writable(path.with_suffix(".json"), force)
     return check_writable(path, force)
+
+
+def parse_names(text: str | None, option: str) -> list[str]:
+    """Comma-separated parameter names of ``option`` ([] when not given)."""
+    if not text:
+        return []
+    names = [n.strip() for n in text.split(",") if n.strip()]
+    if not names:
+        raise InputError(f"{option}: expected comma-separated parameter names")
+    return names

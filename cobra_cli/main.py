@@ -21,6 +21,7 @@ COMMANDS: tuple[str, ...] = (
     "compare",
     "import-optitrack",
     "replay",
+    "check",
     "fit",
     "diagnose",
     "record",

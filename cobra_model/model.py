@@ -332,31 +332,38 @@ class RobotModel:
             pin.forwardKinematics(self.pin_model, data, q, v)
         return data
 
-    def contact_points(self, q: np.ndarray) -> np.ndarray:
-        """(nf, 3) world position [m] of each contact feature's lowest point."""
+    def contact_points(self, q: np.ndarray, rounding: float = 0.0) -> np.ndarray:
+        """(nf, 3) world position [m] of each contact feature's lowest point.
+
+        ``rounding`` [m] is the edge radius of the cylinders' ends (parameter
+        ``contact_rounding``; see :func:`integrators.kernels.ground_forces`).
+        """
         data = self._placements(q)
         out = np.empty((len(self.features), 3))
+        z = np.array([0, 0, 1.0])
         for k in range(len(self.features)):
             M = data.oMi[int(self.features.body[k]) + 1]
             c = M.act(self.features.centre[k])
             if self.features.kind[k] == 0:
-                out[k] = c - np.array([0, 0, self.features.radius[k]])
+                out[k] = c - self.features.radius[k] * z
             else:
+                rho = min(rounding, self.features.radius[k])
                 a = M.rotation @ self.features.axis[k]
-                down = -(np.array([0, 0, 1.0]) - a[2] * a)
+                down = -(z - a[2] * a)
                 n = np.linalg.norm(down)
-                out[k] = c + (self.features.radius[k] * down / n if n > 1e-9 else 0.0)
+                out[k] = c + ((self.features.radius[k] - rho) * down / n if n > 1e-9 else 0.0) - rho * z
         return out
 
-    def contact_jacobian(self, q: np.ndarray) -> np.ndarray:
-        """(3 nf, nv) stacked world-frame Jacobians of the material points at the contact points.
+    def contact_jacobian(self, q: np.ndarray, rounding: float = 0.0) -> np.ndarray:
+        """(3 nf, nv) stacked world-frame Jacobians of the material points at the contact points
+        (``rounding`` as in :meth:`contact_points`).
 
         Rows 3k..3k+2 give feature k's point velocity [m/s] from v; ``J[:, :6]`` is ``J_H``
         and ``J[:, 6:]`` is ``J_a`` of paper Eq. 1.
         """
         data = self.pin_model.createData()
         pin.computeJointJacobians(self.pin_model, data, q)
-        X = self.contact_points(q)
+        X = self.contact_points(q, rounding)
         J = np.zeros((3 * len(self.features), self.nv))
         for k in range(len(self.features)):
             jid = int(self.features.body[k]) + 1
@@ -373,9 +380,9 @@ class RobotModel:
         """(3 nf, n_joints) contact Jacobian columns of the joints."""
         return self.contact_jacobian(q)[:, self.n_base:]
 
-    def contact_velocities(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
+    def contact_velocities(self, q: np.ndarray, v: np.ndarray, rounding: float = 0.0) -> np.ndarray:
         """(nf, 3) world velocity [m/s] of the material points at the contact points."""
-        return (self.contact_jacobian(q) @ v).reshape(-1, 3)
+        return (self.contact_jacobian(q, rounding) @ v).reshape(-1, 3)
 
     # -- energy and momentum ----------------------------------------------------------------
     def kinetic_energy(self, q: np.ndarray, v: np.ndarray) -> float:

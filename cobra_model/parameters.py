@@ -110,6 +110,12 @@ NOMINAL: tuple[Parameter, ...] = (
               doc="viscous friction coefficient per contact point"),
     Parameter("v_s", "m/s", 0.05, 0.005, 0.5, log_scale=True, group="ground",
               doc="Stribeck velocity"),
+    Parameter("friction_cone", "1", 0.0, 0.0, 0.95, frozen=True, group="ground",
+              doc="shape of the sliding-friction limit: 0 per-axis box (the paper's law), "
+                  "0.5 isotropic circle, toward 1 the diamond of a pyramidal cone"),
+    Parameter("contact_rounding", "m", 0.0, 0.0, design.MODULE_RADIUS_M, frozen=True, group="ground",
+              doc="edge radius of the modules' ends where they touch the ground: 0 sharp "
+                  "cylinder rim, the module radius a hemispherical (capsule) end"),
 )
 
 #: Parameters that may be expanded to one value per joint.

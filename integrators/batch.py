@@ -12,30 +12,12 @@ from typing import Sequence
 
 import numpy as np
 import pinocchio as pin
-from numba import njit, prange
 
 from cobra_model.errors import InputError
 from cobra_model.model import RobotModel
 from cobra_model.parameters import ModelParameters
 from integrators import kernels as K
 from integrators.simulator import SimSettings, SimState, Simulator
-
-
-@njit(cache=True, parallel=True)
-def _batch_forces(control, Q, V, goals, goal_index, integ, prev_err, duty, on, act, scal, ground, floating,
-                  chain_i, chain_R, chain_f, feat_i, feat_f, TAU, current, X, F, status):
-    for e in prange(Q.shape[0]):
-        status[e] = K.pre_step(control, Q[e], V[e], goals[goal_index[e]], integ[e], prev_err[e], duty[e], on, act[e],
-                               scal, ground[e], floating, chain_i, chain_R, chain_f, feat_i, feat_f, TAU[e],
-                               current[e], X[e], F[e])
-
-
-@njit(cache=True, parallel=True)
-def _batch_update(Q, V, A, scal, floating, Q_out, V_out, status):
-    for e in prange(Q.shape[0]):
-        s = K.post_step(Q[e], V[e], A[e], scal, floating, Q_out[e], V_out[e])
-        if s != 0:
-            status[e] = s
 
 
 class BatchSimulator:
@@ -123,11 +105,11 @@ class BatchSimulator:
             if i == n_steps:
                 break
             g = goals[min(i // sub, len(goals) - 1)]
-            _batch_forces(i % sub == 0, Q, V, g, gidx, integ, prev, duty, on, self.act, f.scal, self.ground,
+            K.batch_pre_step(i % sub == 0, Q, V, g, gidx, integ, prev, duty, on, self.act, f.scal, self.ground,
                           self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
                           TAU, cur, X, F, status)
             pin.abaInParallel(self.threads, self.pool, Q.T, V.T, TAU.T, A)
-            _batch_update(Q, V, A.T, f.scal, self.model.chain.floating, Qn, Vn, status)
+            K.batch_post_step(Q, V, A.T, f.scal, self.model.chain.floating, Qn, Vn, status)
             if status.any():
                 bad = np.flatnonzero(status)
                 raise RuntimeError(f"environments {bad.tolist()} diverged at t = {i * s.dt:.4f} s (status "

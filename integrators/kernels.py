@@ -15,11 +15,11 @@ local frame; the root's generalized force is (force, torque about its origin) in
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from numba import njit, prange
 
 # Indices into the ground parameter array ``ground``.
-G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL = range(8)
-N_GROUND = 8
+G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL, G_CONE, G_ROUND = range(10)
+N_GROUND = 10
 
 # Indices into the per-joint actuator array ``act`` (shape (n_joints, N_ACT)).
 A_DAMPING, A_RKM, A_COULOMB, A_TAU_MAX, A_COULOMB_EPS, A_ENC_OFFSET, A_BACKLASH = range(7)
@@ -150,18 +150,48 @@ def add_point_force(tau, body, x0, x1, x2, f0, f1, f2, floating, parents, vidx, 
 
 
 @njit(cache=True)
+def cone_weights(v1: float, v2: float, eps: float, cone: float):
+    """Weights on the two per-component Coulomb terms that shape the friction limit surface.
+
+    With ``q = 1 / cone`` the full-slip friction force lies on the unit ``q``-norm ball
+    (scaled per axis by ``s_i F_z``) and points against the slip, the maximum-dissipation
+    direction for that ball: ``cone = 0`` is the box of the paper's per-component law
+    (weights exactly 1), ``cone = 0.5`` the isotropic circle, ``cone -> 1`` the diamond of a
+    pyramidal cone with edges along the body axes (MuJoCo's default ``cone="pyramidal"``).
+    Args: contact-velocity components ``v1, v2`` [m/s], the creep speed ``eps`` [m/s] below
+    which slip counts as zero, and ``cone`` in ``[0, 1)``.
+    """
+    if cone <= 0.0:
+        return 1.0, 1.0
+    a1, a2 = abs(v1), abs(v2)
+    top = max(a1, a2)
+    if top <= 1e-9 * eps:
+        return 1.0, 1.0
+    p = 1.0 / (1.0 - cone)
+    r1, r2 = a1 / top, a2 / top
+    norm = (r1 ** p + r2 ** p) ** (1.0 / p)
+    return (r1 / norm) ** (p - 1.0), (r2 / norm) ** (p - 1.0)
+
+
+@njit(cache=True)
 def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
                   f_body, f_kind, f_c, f_a, f_r, ground, tau, X, F, max_depth):
     """Stribeck ground (paper Eqs. 3-6) on every contact feature, accumulated as ``J^T F``.
 
     Contact points: a point feature touches at ``centre - radius z``; a circle feature (a
-    cylinder's end) at the lowest point of the circle.
+    cylinder's end) at the lowest point of its edge, rounded with radius
+    ``rho = min(ground[G_ROUND], radius)``: the edge is the tube of radius ``rho`` around the
+    circle of radius ``radius - rho`` in the end plane, so the point is
+    ``centre + (radius - rho) d - rho z`` (``d`` the in-plane direction of steepest descent):
+    ``rho = 0`` is the sharp rim of a cylinder, ``rho = radius`` the hemisphere of a capsule.
     Normal: ``F_z = max(0, -k1 p_z - k2 pdot_z)`` below ground, 0 above (no adhesion).
     Tangential, per component ``i`` of the contact velocity in the contact's ground frame
     (``t1`` = the body's x axis projected on the ground, ``t2 = z x t1``):
     ``F_i = -s_i F_z sgn_eps(pdot_i) - mu_v pdot_i`` with
     ``s_i = mu_c - (mu_c - mu_s) exp(-pdot_i^2 / v_s^2)``, the lateral (``t2``) component's
-    ``s`` multiplied by ``ground[G_LATERAL]`` (1 = isotropic, the paper's model).
+    ``s`` multiplied by ``ground[G_LATERAL]`` (1 = isotropic, the paper's model), and each
+    Coulomb/Stribeck term weighted by :func:`cone_weights` with the friction-cone shape
+    ``ground[G_CONE]`` (0 = the paper's per-component law).
     ``sgn_eps(x) = tanh(x / eps)``: below ``eps`` [m/s] friction acts as a viscous damper of
     slope ``s F_z / eps``, so a contact loaded tangentially below its friction limit creeps at
     about ``eps F_t / (s F_z)``; eps bounds the stiffness the explicit step must resolve.
@@ -180,7 +210,7 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
     chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w, vo, aw)
     k1, k2 = ground[G_K1], ground[G_K2]
     mu_c, mu_s, mu_v, v_s = ground[G_MU_C], ground[G_MU_S], ground[G_MU_V], ground[G_V_S]
-    eps, lateral = ground[G_EPS], ground[G_LATERAL]
+    eps, lateral, cone, rounding = ground[G_EPS], ground[G_LATERAL], ground[G_CONE], ground[G_ROUND]
     status = STATUS_OK
     for k in range(f_body.shape[0]):
         b = f_body[k]
@@ -197,10 +227,12 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
             # -(z - (z.a) a): the in-plane direction of steepest descent
             d0, d1, d2 = a0 * a2, a1 * a2, a2 * a2 - 1.0
             n = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            rho = min(rounding, rad)
             if n > 1e-9:
-                x0, x1, x2 = c0 + rad * d0 / n, c1 + rad * d1 / n, c2 + rad * d2 / n
+                ring = (rad - rho) / n
+                x0, x1, x2 = c0 + ring * d0, c1 + ring * d1, c2 + ring * d2 - rho
             else:
-                x0, x1, x2 = c0, c1, c2
+                x0, x1, x2 = c0, c1, c2 - rho
         X[k, 0], X[k, 1], X[k, 2] = x0, x1, x2
         F[k, 0] = 0.0
         F[k, 1] = 0.0
@@ -226,8 +258,9 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
         v2 = -xv0 * t1y + xv1 * t1x
         s1 = mu_c - (mu_c - mu_s) * np.exp(-(v1 / v_s) ** 2)
         s2 = lateral * (mu_c - (mu_c - mu_s) * np.exp(-(v2 / v_s) ** 2))
-        f1 = -s1 * fz * np.tanh(v1 / eps) - mu_v * v1
-        f2 = -s2 * fz * np.tanh(v2 / eps) - mu_v * v2
+        w1, w2 = cone_weights(v1, v2, eps, cone)
+        f1 = -s1 * fz * w1 * np.tanh(v1 / eps) - mu_v * v1
+        f2 = -s2 * fz * w2 * np.tanh(v2 / eps) - mu_v * v2
         fx = f1 * t1x - f2 * t1y
         fy = f1 * t1y + f2 * t1x
         F[k, 0], F[k, 1], F[k, 2] = fx, fy, fz
@@ -417,3 +450,27 @@ def post_step(q, v, a, scal, floating, q_out, v_out):
     """:func:`integrate` then :func:`check_state` on the new velocity; returns the status."""
     integrate(q, v, a, scal[S_DT], floating, q_out, v_out)
     return check_state(v_out, scal[S_MAX_SPEED])
+
+
+@njit(cache=True, parallel=True)
+def batch_pre_step(control, Q, V, goals, goal_index, integ, prev_err, duty, on, act, scal, ground, floating,
+                   chain_i, chain_R, chain_f, feat_i, feat_f, TAU, current, X, F, status):
+    """:func:`pre_step` for every environment ``e`` of a batch (rows of the state arrays).
+
+    The batch kernels live in this file because numba's on-disk cache of a function is
+    invalidated only by changes to the file that defines it: a batch kernel in another module
+    kept running an old, inlined copy of these kernels after they were edited.
+    """
+    for e in prange(Q.shape[0]):
+        status[e] = pre_step(control, Q[e], V[e], goals[goal_index[e]], integ[e], prev_err[e], duty[e], on, act[e],
+                             scal, ground[e], floating, chain_i, chain_R, chain_f, feat_i, feat_f, TAU[e],
+                             current[e], X[e], F[e])
+
+
+@njit(cache=True, parallel=True)
+def batch_post_step(Q, V, A, scal, floating, Q_out, V_out, status):
+    """:func:`post_step` for every environment of a batch; a non-zero status is kept."""
+    for e in prange(Q.shape[0]):
+        s = post_step(Q[e], V[e], A[e], scal, floating, Q_out[e], V_out[e])
+        if s != 0:
+            status[e] = s

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from cobra_model.design import SERVO_GEAR_RATIO
+from cobra_model.design import SERVO_GEAR_RATIO, SUPPLY_VOLTAGE_V
 from cobra_model.errors import InputError
 from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters
 
@@ -30,6 +30,10 @@ def _mujoco():
 
 #: Ground-contact geometries of :class:`TwinOptions` (see its ``contact``).
 CONTACT_MODES: tuple[str, ...] = ("cylinder", "capsule_pairs")
+#: Servo models of :class:`TwinOptions` (see its ``servo``).
+SERVO_MODES: tuple[str, ...] = ("saturating", "linear")
+#: MuJoCo friction cones of :class:`TwinOptions` (see its ``cone``).
+CONE_MODES: tuple[str, ...] = ("pyramidal", "elliptic")
 
 
 @dataclass(frozen=True)
@@ -39,9 +43,16 @@ class TwinOptions:
     Attributes:
         ground: add a ground plane (the world's z = 0 plane, normal +z).
         actuators: add position servos on every joint (stiffness/damping of the nominal
-            Dynamixel loop linearised: ``kp = P/128 * 4096/(2 pi) / 885 * V * rKm / R``). The
-            URDF's joint effort limit (the stall torque, 9.9 N m) bounds each joint's actuator
-            torque in any case: MuJoCo imports it as the joint's ``actuatorfrcrange``.
+            Dynamixel loop linearised: ``kp = P/128 * 4096/(2 pi) / 885 * V * rKm / R``,
+            ``kv = rKm^2 / R``). The URDF's joint effort limit (the stall torque, 9.9 N m)
+            bounds each joint's actuator torque in any case: MuJoCo imports it as the joint's
+            ``actuatorfrcrange``.
+        servo: ``"saturating"``: the loop's PWM duty saturates (see :func:`servo_error_limit`),
+            so the drive torque is ``kp clip(e, +-e_max) - kv qdot`` -- the DC motor's
+            torque-speed line: the joint cannot outrun its no-load speed ``V / rKm`` (4.1 rad/s
+            for the XH540 at 12 V, below the 4.3 rad/s peak of the 60 deg yaw wave at 0.65 Hz).
+            ``"linear"``: ``kp e - kv qdot`` with no duty limit (only the effort limit), a
+            servo faster than the hardware.
         armature, damping, frictionloss: joint properties [kg m^2, N m s/rad, N m].
         forcerange: actuator torque limit [N m] (None: only the URDF's effort limit).
         friction: (sliding [1], torsional [m], rolling [m]) friction coefficients of every geom
@@ -59,6 +70,12 @@ class TwinOptions:
             frame of ``integrators.kernels.ground_forces``.
         lateral_friction_ratio: sideways / along-body sliding friction [1]; the pair friction
             is ``(mu, ratio * mu)`` on those axes. Needs ``contact="capsule_pairs"`` unless 1.
+        cone: MuJoCo's friction cone, ``"pyramidal"`` (its default: with body-aligned pairs a
+            diamond-shaped limit in the ground plane) or ``"elliptic"`` (a circle).
+        impratio: MuJoCo's frictional-to-normal constraint impedance ratio [1]; above 1 the
+            friction is harder (less creep under a tangential load below the limit).
+        solref: MuJoCo's contact reference ``(time constant [s], damping ratio [1])``.
+        solimp: MuJoCo's contact impedance ``(d0, dwidth, width [m], midpoint, power)``.
         timestep: [s].
 
     Raises:
@@ -73,7 +90,12 @@ class TwinOptions:
     forcerange: float | None = None
     friction: tuple[float, float, float] = (0.3, 0.005, 0.0001)
     contact: str = "cylinder"
+    servo: str = "saturating"
     lateral_friction_ratio: float = 1.0
+    cone: str = "pyramidal"
+    impratio: float = 1.0
+    solref: tuple[float, float] = (0.02, 1.0)
+    solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
     timestep: float = 1e-3
 
     def __post_init__(self) -> None:
@@ -86,11 +108,22 @@ class TwinOptions:
             raise InputError(f"TwinOptions.friction must be 3 coefficients >= 0, got {self.friction}")
         if self.contact not in CONTACT_MODES:
             raise InputError(f"TwinOptions.contact must be one of {CONTACT_MODES}, got {self.contact!r}")
+        if self.servo not in SERVO_MODES:
+            raise InputError(f"TwinOptions.servo must be one of {SERVO_MODES}, got {self.servo!r}")
         if not self.lateral_friction_ratio > 0:
             raise InputError(f"TwinOptions.lateral_friction_ratio must be > 0, got {self.lateral_friction_ratio}")
         if self.lateral_friction_ratio != 1.0 and self.contact != "capsule_pairs":
             raise InputError("TwinOptions.lateral_friction_ratio != 1 needs contact='capsule_pairs' "
                              "(MuJoCo's dynamic contacts have no body-aligned tangent frame)")
+        if self.cone not in CONE_MODES:
+            raise InputError(f"TwinOptions.cone must be one of {CONE_MODES}, got {self.cone!r}")
+        if not self.impratio > 0:
+            raise InputError(f"TwinOptions.impratio must be > 0, got {self.impratio}")
+        if len(self.solref) != 2 or not self.solref[0] > 0 or not self.solref[1] > 0:
+            raise InputError(f"TwinOptions.solref must be (time constant > 0 s, damping ratio > 0), got {self.solref}")
+        if len(self.solimp) != 5 or not 0 < self.solimp[0] <= self.solimp[1] < 1:
+            raise InputError(f"TwinOptions.solimp must be (d0, dwidth, width, midpoint, power) with "
+                             f"0 < d0 <= dwidth < 1, got {self.solimp}")
         if not self.timestep > 0:
             raise InputError(f"TwinOptions.timestep must be > 0 s, got {self.timestep}")
 
@@ -98,9 +131,21 @@ class TwinOptions:
 def servo_stiffness_damping(params: ModelParameters, p_gain: int = 800) -> tuple[float, float]:
     """Linearised nominal servo: position stiffness [N m/rad] and back-EMF damping [N m s/rad]."""
     rkm = SERVO_GEAR_RATIO * params.motor_km
-    kp = p_gain / 128.0 * 4096.0 / (2 * np.pi) / 885.0 * 12.0 * rkm / WINDING_RESISTANCE_OHM
+    kp = p_gain / 128.0 * 4096.0 / (2 * np.pi) / 885.0 * SUPPLY_VOLTAGE_V * rkm / WINDING_RESISTANCE_OHM
     kv = rkm * rkm / WINDING_RESISTANCE_OHM
     return kp, kv
+
+
+def servo_error_limit(options: TwinOptions, p_gain: int = 800) -> float | None:
+    """Position error [rad] at which the servo's PWM duty saturates (None for a linear servo).
+
+    The Dynamixel loop sends ``P/128 * e`` [PWM units, e in encoder ticks] clipped at 885, so
+    beyond ``885 * 128 / P`` ticks (0.217 rad at P = 800) a larger error drives no harder;
+    the rollout clips the error it hands the linearised actuator to that.
+    """
+    if options.servo == "linear":
+        return None
+    return 885.0 * 128.0 / p_gain * 2.0 * np.pi / 4096.0
 
 
 def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelParameters | None = None):
@@ -112,6 +157,8 @@ def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelP
     mujoco = _mujoco()
     spec = mujoco.MjSpec.from_file(str(urdf))
     spec.option.timestep = options.timestep
+    spec.option.cone = getattr(mujoco.mjtCone, f"mjCONE_{options.cone.upper()}")
+    spec.option.impratio = options.impratio
     root = spec.worldbody.first_body()
     root.add_freejoint()
     for j in spec.joints:
@@ -121,9 +168,10 @@ def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelP
             j.frictionloss = options.frictionloss
     for g in spec.geoms:
         g.friction = options.friction
+        g.solref, g.solimp = options.solref, options.solimp
     if options.ground:
         spec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
-                                friction=options.friction)
+                                friction=options.friction, solref=options.solref, solimp=options.solimp)
     if options.contact == "capsule_pairs":
         _capsule_ground_pairs(mujoco, spec, options)
     if options.actuators:
@@ -153,7 +201,8 @@ def _capsule_ground_pairs(mujoco, spec, options: TwinOptions) -> None:
                 g.name = f"{body.name}_collision_{k}"
             if options.ground:
                 # geom1 = the plane: MuJoCo's plane-capsule collision then aligns the frame with the capsule
-                spec.add_pair(geomname1="ground", geomname2=g.name, condim=3, friction=friction)
+                spec.add_pair(geomname1="ground", geomname2=g.name, condim=3, friction=friction,
+                              solref=options.solref, solimp=options.solimp)
 
 
 def pin_to_mj(q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

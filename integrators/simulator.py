@@ -170,6 +170,8 @@ class Simulator:
         ground[K.G_MU_C], ground[K.G_MU_S], ground[K.G_MU_V], ground[K.G_V_S] = p.mu_c, p.mu_s, p.mu_v, p.v_s
         ground[K.G_EPS] = s.sgn_eps
         ground[K.G_LATERAL] = p.get("lateral_friction_ratio", 1.0)
+        ground[K.G_CONE] = p.get("friction_cone", 0.0)
+        ground[K.G_ROUND] = p.get("contact_rounding", 0.0)
         self.ground = ground
         act = np.zeros((n, K.N_ACT))
         act[:, K.A_DAMPING] = per_joint("joint_damping", None)
@@ -226,7 +228,7 @@ class Simulator:
             base_quat_wxyz = np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
         q = model.configuration(q_joints, np.array([head_xy[0], head_xy[1], 0.0]), base_quat_wxyz)
         if model.chain.floating and len(model.features):
-            q[2] -= model.contact_points(q)[:, 2].min()
+            q[2] -= model.contact_points(q, self.ground[K.G_ROUND])[:, 2].min()
         return self.state(q)
 
     # -- stepping ---------------------------------------------------------------------------

@@ -21,15 +21,22 @@ batched rollouts (about 4.4 us per environment-step), and the regularised fricti
 long-horizon sensitivities stiff. Finite differences in unit coordinates with step 1e-3 smooth
 over that stiffness.
 
-Confidence intervals come from the Gauss-Newton covariance ``sigma^2 (J^T J)^-1`` with
-``sigma^2 = ||r||^2 / (m - d)`` plus the start-pose term ``A P A^T``, ``A = (J^T J)^-1 J^T J_p``
-and ``P`` the covariance of every run's measured start pose (x, y, heading; see
-:func:`sysid.objective.start_pose_sensitivity`), mapped to physical units. The start pose is a
-measurement too: each run is simulated from it, so its error moves the whole head path and
-biases the fit by more than the noise alone says (on ``benchmarks/recovery.py`` up to 0.7 %,
-three times the noise-only interval). a parameter is flagged as not
-identifiable when it sits on a bound, when it loads a flat direction of ``J`` (singular value
-below 1e-4 of the largest), or when its 95 % interval is wider than its value.
+Confidence intervals come from the HAC sandwich covariance
+``(J^T J)^-1 Omega (J^T J)^-1`` of :mod:`sysid.intervals` (``Omega`` the prewhitened
+Newey-West long-run covariance of each run's scores ``J_t^T r_t``: the residuals are time
+series, and neighbouring samples' errors are correlated when anything lasts longer than one
+sample) plus the start-pose term ``A P A^T``, ``A = (J^T J)^-1 J^T J_p`` and ``P`` the
+covariance of every run's measured start pose (x, y, heading; see
+:func:`sysid.objective.start_pose_sensitivity`), mapped to physical units. With white
+residuals the sandwich is the Gauss-Newton ``sigma^2 (J^T J)^-1``, ``sigma^2 = ||r||^2 / (m - d)``;
+that interval is reported too (``ci_low_iid``, ``ci_high_iid``).
+The start pose is a measurement too: each run is simulated from it, so its error moves the
+whole head path and biases the fit by more than the noise alone says (on
+``benchmarks/recovery.py`` up to 0.7 %, three times the noise-only interval). The fit also
+tests the residuals for whiteness (:func:`sysid.intervals.whiteness`, ``residual_whiteness``):
+residuals that are not white mean a model mismatch the intervals do not cover. A parameter is
+flagged as not identifiable when it sits on a bound, when it loads a flat direction of ``J``
+(singular value below 1e-4 of the largest), or when its 95 % interval is wider than its value.
 """
 from __future__ import annotations
 
@@ -46,6 +53,7 @@ import numpy as np
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
+from sysid.intervals import Whiteness, sandwich_covariance, whiteness
 from sysid.objective import Objective
 
 
@@ -95,6 +103,10 @@ class ParameterReport:
     at_bound: bool
     identifiable: bool
     reason: str
+    #: The 95 % interval if the residuals were white (Gauss-Newton ``sigma^2 (J^T J)^-1`` plus the
+    #: start pose): the interval before autocorrelation was allowed for (NaN when not computed).
+    ci_low_iid: float = float("nan")
+    ci_high_iid: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -113,6 +125,10 @@ class FitResult:
     method: str = "lsq"
     extra: dict = field(default_factory=dict)
     residual_count: int = 0
+    #: Ljung-Box whiteness of the final residuals (None for methods without residuals).
+    residual_whiteness: Whiteness | None = None
+    #: How the intervals were computed, one line for reports ("" when they were not).
+    interval_method: str = ""
 
 
 @contextmanager
@@ -247,9 +263,13 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     z = lm.z
     log.extend(lm.log)
     fitted = params0.from_unit(z)
-    report, sv = _uncertainty(params0, fitted, lm.J, lm.r, z, objective.start_pose_sensitivity(lm.r))
-    return FitResult(fitted, lm.status, lm.cost, 0.5 * float(r0 @ r0), log, report, sv, objective.evaluations,
-                     time.perf_counter() - t_start, residual_count=lm.r.size)
+    blocks = objective.residual_blocks()
+    found = uncertainty(params0, fitted, lm.J, lm.r, z, objective.start_pose_sensitivity(lm.r), blocks,
+                        sample_hz=objective.weights.sample_hz)
+    white = whiteness(lm.r, blocks, missing=objective.head_gaps())
+    return FitResult(fitted, lm.status, lm.cost, 0.5 * float(r0 @ r0), log, found.report, found.singular_values,
+                     objective.evaluations, time.perf_counter() - t_start, residual_count=lm.r.size,
+                     residual_whiteness=white, interval_method=found.method)
 
 
 @dataclass
@@ -347,24 +367,66 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
     return _LMState(z, r, J, cost, status, log)
 
 
+@dataclass(frozen=True)
+class Uncertainty:
+    """What :func:`uncertainty` found: the parameter table, the singular values of ``J`` and
+    one line saying how the intervals were computed."""
+
+    report: list[ParameterReport]
+    singular_values: np.ndarray
+    method: str
+
+
 def _uncertainty(initial: ModelParameters, fitted: ModelParameters, J: np.ndarray, r: np.ndarray,
                  z: np.ndarray, start_pose: tuple[np.ndarray, np.ndarray] | None = None
                  ) -> tuple[list[ParameterReport], np.ndarray]:
-    """95 % intervals (measurement noise, and the start poses' uncertainty when given as
-    (residual derivatives, standard uncertainties)) and identifiability flags."""
+    """(report, singular values) of :func:`uncertainty` with white residuals assumed (no blocks)."""
+    u = uncertainty(initial, fitted, J, r, z, start_pose)
+    return u.report, u.singular_values
+
+
+def uncertainty(initial: ModelParameters, fitted: ModelParameters, J: np.ndarray, r: np.ndarray,
+                z: np.ndarray, start_pose: tuple[np.ndarray, np.ndarray] | None = None,
+                blocks: Sequence[np.ndarray] | None = None, *, sample_hz: float | None = None) -> Uncertainty:
+    """95 % intervals and identifiability flags.
+
+    Args:
+        initial, fitted: parameter sets at the start and at the end of the fit.
+        J: ``(m, d)`` residual Jacobian in unit coordinates; r: ``(m,)`` residuals; z: ``(d,)``
+            fitted unit coordinates.
+        start_pose: the start poses' (residual derivatives, standard uncertainties), whose
+            covariance is added (:func:`sysid.objective.start_pose_sensitivity`).
+        blocks: per run, ``(S, C)`` residual indices by sample time and channel
+            (:func:`sysid.objective.residual_blocks`): with them the noise covariance is the
+            HAC sandwich of :func:`sysid.intervals.sandwich_covariance`; without them the
+            Gauss-Newton ``sigma^2 (J^T J)^-1`` (white residuals assumed).
+        sample_hz: residual sample rate [Hz], to state the HAC bandwidth in seconds.
+    """
     m, d = J.shape
     U, s, Vt = np.linalg.svd(J, full_matrices=False)
     sigma2 = float(r @ r) / max(m - d, 1)
     flat = s < 1e-4 * s[0] if s.size and s[0] > 0 else np.ones(d, dtype=bool)
     inv_s2 = np.where(flat, 0.0, 1.0 / np.where(s > 0, s, 1.0) ** 2)
     JtJ_pinv = (Vt.T * inv_s2) @ Vt
-    cov_z = JtJ_pinv * sigma2
+    cov_pose = np.zeros((d, d))
     if start_pose is not None:
         J_pose, pose_std = start_pose
         through = JtJ_pinv @ J.T @ (J_pose * pose_std)      # d z per standard start-pose error
-        cov_z += through @ through.T
+        cov_pose = through @ through.T
+    cov_iid = JtJ_pinv * sigma2 + cov_pose
+    if blocks is not None:
+        hac = sandwich_covariance(J, r, blocks, JtJ_pinv, sample_hz=sample_hz)
+        cov_z = hac.cov + cov_pose
+        lag = f"{hac.bandwidth:.2f} samples" + (f" = {hac.bandwidth_s:.2f} s" if np.isfinite(hac.bandwidth_s) else "")
+        method = f"HAC sandwich (Newey-West, VAR(1)-prewhitened, Bartlett bandwidth {lag}, per run)"
+    else:
+        cov_z = cov_iid
+        method = "Gauss-Newton sigma^2 (J^T J)^-1 (white residuals assumed)"
+    if start_pose is not None:
+        method += " + start-pose uncertainty"
     D = _unit_jacobian(fitted)
     std = np.sqrt(np.maximum(np.diag(cov_z), 0.0)) * np.abs(D)
+    std_iid = np.sqrt(np.maximum(np.diag(cov_iid), 0.0)) * np.abs(D)
     loads_flat = np.zeros(d, dtype=bool)
     for k in np.flatnonzero(flat):
         loads_flat |= np.abs(Vt[k]) > 0.3
@@ -372,7 +434,7 @@ def _uncertainty(initial: ModelParameters, fitted: ModelParameters, J: np.ndarra
     out = []
     for i, name in enumerate(fitted.free_names):
         p: Parameter = fitted[name]
-        half = 1.96 * std[i]
+        half, half_iid = 1.96 * std[i], 1.96 * std_iid[i]
         at_bound = bool(z[i] < 1e-3 or z[i] > 1 - 1e-3)
         reasons = []
         if at_bound:
@@ -381,8 +443,11 @@ def _uncertainty(initial: ModelParameters, fitted: ModelParameters, J: np.ndarra
             reasons.append("in a flat direction of the residual Jacobian")
         if not loads_flat[i] and half > abs(p.value):
             reasons.append("95 % interval wider than the value")
+        nan = float("nan")
         out.append(ParameterReport(name, p.unit, nominal.get(name, initial.value(name)), initial.value(name), p.value,
-                                   p.value - half if not loads_flat[i] else float("nan"),
-                                   p.value + half if not loads_flat[i] else float("nan"),
-                                   at_bound, not reasons, "; ".join(reasons) or "identifiable"))
-    return out, s
+                                   p.value - half if not loads_flat[i] else nan,
+                                   p.value + half if not loads_flat[i] else nan,
+                                   at_bound, not reasons, "; ".join(reasons) or "identifiable",
+                                   p.value - half_iid if not loads_flat[i] else nan,
+                                   p.value + half_iid if not loads_flat[i] else nan))
+    return Uncertainty(out, s, method)

@@ -2,7 +2,8 @@
 
 The robot is MuJoCo's twin of the same URDF (:mod:`integrators.mujoco_twin`): another contact
 model (soft complementarity constraints with Coulomb friction instead of our compliant Stribeck
-ground), another integrator, linearised position servos instead of our PWM-driven DC motors.
+ground), another integrator, linearised position servos (with the PWM duty limit as an error clip) instead
+of our PWM-driven DC motors.
 A run starts at rest on the ground in the gait's initial pose, exactly where our simulator
 would start it (``Simulator.rest_state``), the servos follow the sidewinding commands, and the
 trajectory is measured by :func:`sysid.dataset.measure`, like the reference dataset (quantised
@@ -58,7 +59,8 @@ def twin_options(params: ModelParameters) -> TwinOptions:
 
 
 def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarray], np.ndarray],
-            duration_s: float, record_every: int = RECORD_EVERY) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            duration_s: float, record_every: int = RECORD_EVERY, error_limit_rad: float | None = None
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run the MuJoCo twin from rest at ``q0`` with servo goals ``q_ref(t)``.
 
     Args:
@@ -67,6 +69,8 @@ def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarra
         q_ref: function of a time array [s] -> (len(t), 11) goals [rad], sent before each step.
         duration_s: simulated time [s].
         record_every: physics steps between recorded samples (the first is the initial state).
+        error_limit_rad: the servo's duty saturation as a position-error clip
+            (:func:`integrators.mujoco_twin.servo_error_limit`); None: linear servos.
 
     Returns:
         ``(t, q, q_joints)``: times (N,) [s], configurations (N, nq) in Pinocchio's convention
@@ -93,7 +97,11 @@ def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarra
             qpos[i // record_every] = data.qpos
         if i == n_steps:
             break
-        data.ctrl[:] = goals[i]
+        if error_limit_rad is None:
+            data.ctrl[:] = goals[i]
+        else:
+            q_now = data.qpos[7:]
+            data.ctrl[:] = q_now + np.clip(goals[i] - q_now, -error_limit_rad, error_limit_rad)
         mujoco.mj_step(mj_model, data)
     bad = data.warning[mujoco.mjtWarning.mjWARN_BADQACC]
     if bad.number:
@@ -130,7 +138,8 @@ def record_mujoco(run_plan: RunPlan, options: TwinOptions, rng: np.random.Genera
     q0 = Simulator(model).rest_state(gait.q_ref(0.0), head_xy=run_plan.head_xy,
                                      heading_rad=run_plan.heading_rad).q
     mj_model = mujoco_twin.build(model.urdf_path, options, params)
-    t, q, q_joints = rollout(mj_model, q0, gait.q_ref, run_plan.duration_s)
+    t, q, q_joints = rollout(mj_model, q0, gait.q_ref, run_plan.duration_s,
+                             error_limit_rad=mujoco_twin.servo_error_limit(options))
     return measure(t, q, q_joints, run_plan, rng, model, source="mujoco",
                    note=f"MuJoCo twin run ({describe(options)})")
 
@@ -141,5 +150,6 @@ def describe(options: TwinOptions) -> str:
              f"frictionloss {options.frictionloss:g} N m",
              f"forcerange {'none' if options.forcerange is None else f'{options.forcerange:g} N m'}",
              f"ground mu {options.friction[0]:g}", f"lateral/along friction {options.lateral_friction_ratio:g}",
-             f"contact {options.contact}"]
+             f"contact {options.contact}", f"servo {options.servo}", f"cone {options.cone}",
+             f"impratio {options.impratio:g}", f"solref {options.solref}", f"solimp {options.solimp}"]
     return ", ".join(parts)

@@ -177,6 +177,34 @@ def residual_vector(spec: ObjectiveSpec, sim: Simulated) -> np.ndarray:
     return np.concatenate(parts)
 
 
+def residual_blocks(spec: ObjectiveSpec) -> list[np.ndarray]:
+    """Where each run's samples sit in the residual vector of :func:`residual_vector`.
+
+    Returns:
+        per run, an ``(S, 13)`` integer array: row ``t`` is sample time ``t_samples[t]``,
+        columns are the channels head x, head y, then joints 1 to 11; entries index the
+        stacked residual vector (the time series of one channel is a column).
+    """
+    out = []
+    k = 0
+    for tg in spec.targets:
+        S, n_j = len(tg.t_samples), tg.q.shape[1]
+        head = k + 2 * np.arange(S)[:, None] + np.arange(2)[None, :]
+        joints = k + 2 * S + n_j * np.arange(S)[:, None] + np.arange(n_j)[None, :]
+        out.append(np.hstack([head, joints]))
+        k += 2 * S + tg.q.size
+    return out
+
+
+def head_gaps(spec: ObjectiveSpec) -> np.ndarray:
+    """``(m,)`` booleans: residuals that are motion-capture gaps (zeros, not measurements)."""
+    parts = []
+    for tg in spec.targets:
+        parts.append(np.repeat(~np.isfinite(tg.head_xy).all(axis=1), 2))
+        parts.append(np.zeros(tg.q.size, dtype=bool))
+    return np.concatenate(parts)
+
+
 def start_pose_sensitivity(spec: ObjectiveSpec, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """How the residuals ``r`` of one parameter vector move with each run's start pose.
 
@@ -302,6 +330,15 @@ class Objective:
         """Derivatives of residuals ``r`` by every run's start pose, and its uncertainties
         (:func:`start_pose_sensitivity`)."""
         return start_pose_sensitivity(self.spec, r)
+
+    def residual_blocks(self) -> list[np.ndarray]:
+        """Per run, ``(S, 13)`` indices of its residuals by sample time and channel
+        (:func:`residual_blocks`)."""
+        return residual_blocks(self.spec)
+
+    def head_gaps(self) -> np.ndarray:
+        """Residuals that are motion-capture gaps (:func:`head_gaps`)."""
+        return head_gaps(self.spec)
 
     def terms(self, X: np.ndarray) -> list[dict[str, float]]:
         """The paper's reward terms (dicts) for each row of X."""

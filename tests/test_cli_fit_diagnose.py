@@ -39,7 +39,14 @@ def test_fit_writes_parameters_and_report(data, tmp_path, capsys):
     doc = json.loads(out.read_text())
     assert doc["parameters"]["mu_c"]["frozen"] is False
     assert doc["fit"]["status"] and doc["fit"]["evaluations"] > 0
+    # the truth has gearbox Coulomb friction the fitted model lacks: the residuals say so
+    whiteness = doc["fit"]["residual_whiteness"]
+    assert whiteness["white"] is False and "understate" in whiteness["verdict"]
+    assert set(doc["fit"]["intervals_iid"]) == {"mu_c"} and "HAC" in doc["fit"]["interval_method"]
+    printed = capsys.readouterr().out
+    assert "WARNING: residuals: NOT white" in printed and "intervals: HAC" in printed
     html = (report / "report.html").read_text()
+    assert "Residuals: NOT white" in html
     assert "held_out_head_error.png" in html and "replay.html" in html
     assert ModelParameters.load(out).value("mu_c") != ModelParameters.nominal().mu_c
     assert main(args) == 2                                  # no overwrite without --force

@@ -61,19 +61,70 @@ def test_integrate_equals_pinocchio(cobra, seed):
     assert np.allclose(q_out[7:], ref[7:], atol=1e-14)
 
 
-def test_ground_law_pointwise(cobra):
+def _assert_ground_invariants(sim: Simulator, rng: np.random.Generator, n: int) -> None:
     """Normal force never negative, no adhesion, friction power never positive (random states)."""
-    rng = np.random.default_rng(7)
-    sim = Simulator(cobra)
-    for _ in range(200):
+    rounding = sim.ground[K.G_ROUND]
+    for _ in range(n):
         q, v = _random_state(sim.model, rng, z=rng.uniform(-0.01, 0.06))
         v *= rng.uniform(0.1, 5.0)
         _, _, X, F = _forces(sim, q, v)
         assert np.all(F[:, 2] >= 0)
         assert np.all(F[X[:, 2] >= 0] == 0)
-        vel = sim.model.contact_velocities(q, v)
+        assert np.allclose(X, sim.model.contact_points(q, rounding), atol=1e-12)
+        vel = sim.model.contact_velocities(q, v, rounding)
         friction_power = np.einsum("ij,ij->i", F[:, :2], vel[:, :2])
         assert np.all(friction_power <= 1e-12)
+
+
+def test_ground_law_pointwise(cobra):
+    _assert_ground_invariants(Simulator(cobra), np.random.default_rng(7), 200)
+
+
+@pytest.mark.parametrize("shape", [{"friction_cone": 0.5}, {"friction_cone": 0.9, "contact_rounding": 0.045},
+                                   {"contact_rounding": 0.02}])
+def test_ground_law_pointwise_with_shape_parameters(cobra, shape):
+    """The cone-shaped limit and rounded ends keep the invariants of the paper's law, and the
+    kernel's contact points are the model's (Pinocchio's) with the same rounding."""
+    _assert_ground_invariants(Simulator(cobra, ModelParameters.nominal().with_values(**shape)),
+                              np.random.default_rng(8), 100)
+
+
+@pytest.mark.parametrize("angle", [0.0, 0.3, np.pi / 4, 1.2])
+def test_cone_weights_put_the_full_slip_force_on_the_limit_surface(angle):
+    """At full slip the Coulomb force lies on the unit q-ball, q = 1/cone, and opposes the slip
+    as much as that ball allows (maximum dissipation); cone 0 is the paper's box exactly."""
+    v1, v2 = np.cos(angle), np.sin(angle)          # 1 m/s >> eps: tanh = sign
+    assert K.cone_weights(v1, v2, 0.01, 0.0) == (1.0, 1.0)
+    w1, w2 = K.cone_weights(v1, v2, 0.01, 0.5)
+    assert np.hypot(w1, w2) == pytest.approx(1.0, abs=1e-12)            # circle, isotropic
+    assert np.arctan2(w2, w1) == pytest.approx(angle, abs=1e-12)        # force against the slip
+    for cone in (0.3, 0.7, 0.9):
+        q_norm = 1.0 / cone
+        w1, w2 = K.cone_weights(v1, v2, 0.01, cone)
+        assert (w1 ** q_norm + w2 ** q_norm) ** (1 / q_norm) == pytest.approx(1.0, abs=1e-9)
+        # no other point of the ball dissipates more power against this slip
+        phi = np.linspace(0, np.pi / 2, 2001)
+        c, s = np.cos(phi), np.sin(phi)
+        ball = np.stack([c, s]) / (c ** q_norm + s ** q_norm) ** (1 / q_norm)
+        assert w1 * v1 + w2 * v2 >= np.max(ball[0] * v1 + ball[1] * v2) - 1e-9
+    # toward the diamond (MuJoCo's pyramid with body-aligned edges) the force goes to the vertex
+    w1, w2 = K.cone_weights(1.0, 0.6, 0.01, 0.95)
+    assert w1 > 0.99 and w2 < 1e-4
+
+
+def test_friction_cone_zero_is_the_paper_law(cobra):
+    rng = np.random.default_rng(9)
+    box = Simulator(cobra)
+    explicit = Simulator(cobra, ModelParameters.nominal().with_values(friction_cone=0.0))
+    circle = Simulator(cobra, ModelParameters.nominal().with_values(friction_cone=0.5))
+    q, v = _random_state(cobra, rng, z=0.0)
+    _, tau_box, _, F_box = _forces(box, q, v)
+    assert np.array_equal(_forces(explicit, q, v)[1], tau_box)
+    _, _, _, F_circle = _forces(circle, q, v)
+    touching = F_box[:, 2] > 0
+    assert touching.any()
+    # the circle is inside the box: never more friction than the per-axis law
+    assert np.all(np.hypot(*F_circle[:, :2].T) <= np.hypot(*F_box[:, :2].T) + 1e-12)
 
 
 def test_unsupported_joint_is_reported(erd_dir):

@@ -1,0 +1,228 @@
+"""Base fit on runs MuJoCo made, no effect added: held-out head error, joint RMSE, intervals.
+
+Issue 16's bar for a base fit that survives structural mismatch: on MuJoCo-made runs in several
+contact configurations, over 3 noise seeds and 2 starting headings, the fitted model's held-out
+final head error is at most 5 cm on every gait and its joint RMSE at most 1.5 times the
+quantisation-and-noise floor. This benchmark measures exactly that, and reports where it fails.
+
+Configurations (the robot's parameter error ``TRUTH`` in all; :mod:`sysid.mujoco_runs`):
+
+| name | contact | friction cone | solref |
+|---|---|---|---|
+| twin | capsule pairs, body-aligned frames | pyramidal (diamond in the ground plane) | 0.02 s, 1 |
+| elliptic_soft | capsule pairs | elliptic (circle) | 0.04 s, 1 (softer) |
+| cylinder | the URDF's cylinders, MuJoCo's dynamic contacts | pyramidal in a world-fixed frame | 0.02 s, 1 |
+
+Per configuration x seed x heading ``h``: three training runs (0.35/0.5/0.65 Hz,
+``--train-duration`` s, heading ``h``) and three held-out runs (same gaits,
+``--holdout-duration`` s, heading ``h + 1 rad``), measured like the reference dataset (50 Hz
+quantised encoders, mocap noise and dropouts; noise drawn from the seed). The fit is
+``cobra fit --method lsq``'s (:func:`sysid.lsq.fit_lsq`) from the nominal model with
+``FREE`` free (or ``--free``). Per held-out gait the table gives the final head error of the
+nominal and the fitted model and the fitted model's joint RMSE against the floor
+(``2 pi / 4096 / sqrt 12`` [rad]: the encoders' quantisation, the only noise on the joint log;
+its timing jitter is logged). Interval coverage counts, over all fits, how often the 95 %
+interval of a parameter with a MuJoCo counterpart holds the MuJoCo value (``joint_damping``:
+joint ``damping``; ``mu_c``: sliding friction; ``armature``: joint ``armature``).
+
+Seeds: 7 (heading 0.3 rad, twin) was used while developing; the table reports seeds 101-103.
+Progress goes to stderr; results to ``benchmarks/results/mujoco_fit.{json,md}``.
+
+Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--seeds 101,102,103]
+[--headings 0.3,2.0] [--iterations 8]``.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from typing import Callable
+
+import numpy as np
+
+from _results import write_results
+from cobra_model import CobraModel, ModelParameters
+from cobra_model.runs import Run
+from integrators.mujoco_twin import TwinOptions
+from integrators.runs import simulate_like
+from sysid.dataset import ENCODER_COUNTS, RunPlan
+from sysid.lsq import fit_lsq
+from sysid.metrics import compare_runs
+from sysid.mujoco_runs import describe, record_mujoco, twin_options
+from sysid.objective import Objective, Weights
+
+#: The robot's parameter error (as in benchmarks/mujoco_robustness.py).
+TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
+#: The base fit's free parameters: the actuator error's two, every ground parameter, and the
+#: shape of the friction limit and of the modules' ends (frozen at the paper's law by default).
+FREE = ["joint_damping", "motor_km", "k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", "friction_cone", "contact_rounding"]
+GAITS_HZ = (0.35, 0.5, 0.65)
+DEV_SEEDS = (7,)
+EVAL_SEEDS = (101, 102, 103)
+HEADINGS_RAD = (0.3, 2.0)
+HOLDOUT_TURN_RAD = 1.0
+#: Joint-angle noise floor [rad]: the RMS of the encoders' rounding error.
+JOINT_FLOOR_RAD = 2 * np.pi / ENCODER_COUNTS / np.sqrt(12)
+HEAD_BOUND_M = 0.05
+JOINT_BOUND_FACTOR = 1.5
+
+
+def configurations(truth: ModelParameters) -> dict[str, TwinOptions]:
+    """The MuJoCo contact configurations of the benchmark (see the module docstring)."""
+    twin = twin_options(truth)
+    return {
+        "twin": twin,
+        "elliptic_soft": dataclasses.replace(twin, cone="elliptic", solref=(0.04, 1.0)),
+        "cylinder": dataclasses.replace(twin, contact="cylinder"),
+    }
+
+
+def mujoco_truth(options: TwinOptions) -> dict[str, float]:
+    """Our parameters' values in the MuJoCo model (those with a counterpart)."""
+    return {"armature": options.armature, "joint_damping": options.damping, "mu_c": options.friction[0]}
+
+
+def record_case(options: TwinOptions, truth: ModelParameters, seed: int, heading: float, train_s: float,
+                holdout_s: float, model: CobraModel) -> tuple[list[Run], list[Run]]:
+    """Three training runs at ``heading`` and three held-out runs turned by HOLDOUT_TURN_RAD."""
+    rng = np.random.default_rng(seed)
+    train = [record_mujoco(RunPlan(f"train_{f}", f, train_s, (0.0, 0.0), heading, "train"), options, rng, model, truth)
+             for f in GAITS_HZ]
+    hold = [record_mujoco(RunPlan(f"holdout_{f}", f, holdout_s, (0.5, -0.5), heading + HOLDOUT_TURN_RAD, "holdout"),
+                          options, rng, model, truth) for f in GAITS_HZ]
+    return train, hold
+
+
+def run_case(config: str, options: TwinOptions, seed: int, heading: float, args: argparse.Namespace,
+             start: ModelParameters, model: CobraModel, progress: Callable[[str], None]) -> list[dict]:
+    """Fit one case and evaluate it on its held-out runs: one row per held-out gait."""
+    truth = ModelParameters.nominal().with_values(**TRUTH)
+    progress("recording 6 MuJoCo runs")
+    train, hold = record_case(options, truth, seed, heading, args.train_duration, args.holdout_duration, model)
+    progress(f"fitting {len(start.free_names)} parameters on 3 runs of {args.train_duration:g} s")
+    t0 = time.perf_counter()
+    fit = fit_lsq(Objective(train, start, Weights()), max_iterations=args.iterations, budget_seconds=args.budget,
+                  progress=lambda i, c, s: progress(f"  iteration {i}: cost {c:.4g} ({s:.0f} s)"))
+    wall = time.perf_counter() - t0
+    counterpart = mujoco_truth(options)
+    intervals = {r.name: {"value": r.value, "ci": [r.ci_low, r.ci_high], "truth": counterpart[r.name],
+                          "holds": bool(r.ci_low <= counterpart[r.name] <= r.ci_high)}
+                 for r in fit.report if r.name in counterpart}
+    at_bound = [r.name for r in fit.report if r.at_bound]
+    rows = []
+    for run in hold:
+        before = compare_runs(run, simulate_like(run, params=start)).to_json_dict()
+        after = compare_runs(run, simulate_like(run, params=fit.params)).to_json_dict()
+        joint = after["joint_rmse_rad"]["mean"]
+        rows.append({
+            "config": config, "seed": seed, "heading_rad": heading, "gait_hz": run.meta["gait"]["frequency_hz"],
+            "head_final_m_nominal": before["head_final_error_m"], "head_final_m_fitted": after["head_final_error_m"],
+            "joint_rmse_rad_nominal": before["joint_rmse_rad"]["mean"], "joint_rmse_rad_fitted": joint,
+            "joint_rmse_over_floor": joint / JOINT_FLOOR_RAD,
+            "meets_head_bound": after["head_final_error_m"] <= HEAD_BOUND_M,
+            "meets_joint_bound": joint <= JOINT_BOUND_FACTOR * JOINT_FLOOR_RAD,
+            "fit_status": fit.status.value, "fit_seconds": wall, "at_bound": at_bound, "intervals": intervals,
+            "fitted": {n: fit.params.value(n) for n in fit.params.free_names},
+        })
+    return rows
+
+
+def markdown(rows: list[dict], meta: dict) -> str:
+    """The per-gait table, the pass counts and the interval coverage."""
+    lines = ["# Base fit on MuJoCo-made runs (no effect added)", "",
+             f"{meta['cases_done']} of {meta['cases']} cases (configuration x seed x heading) measured. "
+             f"Seeds {meta['seeds']} (development seed {list(DEV_SEEDS)} not reported), headings "
+             f"{meta['headings_rad']} rad; training runs {meta['train_duration_s']:g} s, held-out runs "
+             f"{meta['holdout_duration_s']:g} s turned by {HOLDOUT_TURN_RAD:g} rad; "
+             f"{meta['iterations_per_stage']} Jacobians per stage at most; free: "
+             f"{', '.join(meta['free'])}. Bounds: held-out final head error <= {HEAD_BOUND_M * 100:g} cm, "
+             f"joint RMSE <= {JOINT_BOUND_FACTOR:g} x floor ({JOINT_FLOOR_RAD * 1e3:.3f} mrad).", "",
+             "| config | seed | heading [rad] | gait [Hz] | head final, nominal -> fitted [m] | "
+             "joint RMSE fitted [mrad] (x floor) | fit [s] | at a bound |",
+             "|---|---:|---:|---:|---|---|---:|---|"]
+    for r in rows:
+        lines.append(f"| {r['config']} | {r['seed']} | {r['heading_rad']:g} | {r['gait_hz']:g} | "
+                     f"{r['head_final_m_nominal']:.3f} -> {r['head_final_m_fitted']:.3f} | "
+                     f"{r['joint_rmse_rad_fitted'] * 1e3:.2f} ({r['joint_rmse_over_floor']:.1f}) | "
+                     f"{r['fit_seconds']:.0f} | {', '.join(r['at_bound']) or '-'} |")
+    lines += ["", "| config | gaits within 5 cm | joint RMSE within bound | median head final, fitted [m] | "
+              "worst [m] |", "|---|---|---|---:|---:|"]
+    for config in dict.fromkeys(r["config"] for r in rows):
+        sub = [r for r in rows if r["config"] == config]
+        heads = [r["head_final_m_fitted"] for r in sub]
+        lines.append(f"| {config} | {sum(r['meets_head_bound'] for r in sub)}/{len(sub)} | "
+                     f"{sum(r['meets_joint_bound'] for r in sub)}/{len(sub)} | {np.median(heads):.3f} | "
+                     f"{max(heads):.3f} |")
+    fits = {(r["config"], r["seed"], r["heading_rad"]): r["intervals"] for r in rows}
+    names = sorted({n for iv in fits.values() for n in iv})
+    lines += ["", "95 % interval coverage of the MuJoCo value, over the fits:", "",
+              "| parameter | MuJoCo value | coverage |", "|---|---:|---:|"]
+    for n in names:
+        held = [iv[n]["holds"] for iv in fits.values() if n in iv]
+        truth = next(iv[n]["truth"] for iv in fits.values() if n in iv)
+        lines.append(f"| {n} | {truth:g} | {sum(held)}/{len(held)} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    truth = ModelParameters.nominal().with_values(**TRUTH)
+    configs = configurations(truth)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--configs", default=",".join(configs), help=f"subset of {', '.join(configs)}")
+    parser.add_argument("--seeds", default=",".join(map(str, EVAL_SEEDS)), help="noise seeds (default: 101,102,103)")
+    parser.add_argument("--headings", default=",".join(map(str, HEADINGS_RAD)), help="training headings [rad]")
+    parser.add_argument("--train-duration", type=float, default=6.0, help="training run length [s] (default 6)")
+    parser.add_argument("--holdout-duration", type=float, default=8.0, help="held-out run length [s] (default 8)")
+    parser.add_argument("--free", default=",".join(FREE), help="comma-separated free parameters (default: FREE)")
+    parser.add_argument("--iterations", type=int, default=8,
+                        help="Jacobians per stage of the horizon continuation (default 8)")
+    parser.add_argument("--budget", type=float, default=None,
+                        help="wall-time budget per fit [s] (default none: a budget makes the result depend on the "
+                             "machine's load)")
+    parser.add_argument("--name", default="mujoco_fit", help="results file stem (default mujoco_fit)")
+    args = parser.parse_args(argv)
+    chosen = [c.strip() for c in args.configs.split(",") if c.strip()]
+    if not chosen or any(c not in configs for c in chosen):
+        parser.error(f"--configs: choose from {', '.join(configs)}, got {args.configs!r}")
+    seeds = [int(s) for s in args.seeds.split(",")]
+    if any(s in DEV_SEEDS for s in seeds):
+        print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
+    headings = [float(h) for h in args.headings.split(",")]
+    start = ModelParameters.nominal().with_frozen(free=[n.strip() for n in args.free.split(",") if n.strip()])
+    model = CobraModel.load()
+    rows: list[dict] = []
+    t_all = time.perf_counter()
+    cases = [(c, s, h) for c in chosen for s in seeds for h in headings]
+
+    def save() -> tuple:
+        """Write the rows so far (after every case: a long run interrupted keeps what it measured)."""
+        meta = {"configs": {c: describe(configs[c]) for c in chosen}, "seeds": seeds, "dev_seeds": list(DEV_SEEDS),
+                "headings_rad": headings, "train_duration_s": args.train_duration,
+                "holdout_duration_s": args.holdout_duration, "free": list(start.free_names), "truth": TRUTH,
+                "iterations_per_stage": args.iterations, "budget_s": args.budget,
+                "joint_floor_rad": JOINT_FLOOR_RAD, "head_bound_m": HEAD_BOUND_M,
+                "joint_bound_factor": JOINT_BOUND_FACTOR, "cases_done": len(rows) // len(GAITS_HZ),
+                "cases": len(cases), "wall_s": time.perf_counter() - t_all}
+        md = markdown(rows, meta)
+        return write_results(args.name, rows, meta, md), md
+
+    for k, (config, seed, heading) in enumerate(cases):
+        t_case = time.perf_counter()
+        progress = lambda msg, k=k, t_case=t_case: print(  # noqa: E731
+            f"[case {k + 1}/{len(cases)} {time.perf_counter() - t_case:5.0f} s] {msg}", file=sys.stderr, flush=True)
+        progress(f"{config}, seed {seed}, heading {heading:g} rad")
+        new = run_case(config, configs[config], seed, heading, args, start, model, progress)
+        rows += new
+        for r in new:
+            print(f"{config:14s} seed {seed} heading {heading:g} {r['gait_hz']:g} Hz: head "
+                  f"{r['head_final_m_nominal']:.3f} -> {r['head_final_m_fitted']:.3f} m, joint RMSE "
+                  f"{r['joint_rmse_rad_fitted'] * 1e3:.2f} mrad", flush=True)
+        (json_path, md_path), md = save()
+    print(md)
+    print(f"wrote {json_path} and {md_path}", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
