@@ -377,14 +377,6 @@ class Uncertainty:
     method: str
 
 
-def _uncertainty(initial: ModelParameters, fitted: ModelParameters, J: np.ndarray, r: np.ndarray,
-                 z: np.ndarray, start_pose: tuple[np.ndarray, np.ndarray] | None = None
-                 ) -> tuple[list[ParameterReport], np.ndarray]:
-    """(report, singular values) of :func:`uncertainty` with white residuals assumed (no blocks)."""
-    u = uncertainty(initial, fitted, J, r, z, start_pose)
-    return u.report, u.singular_values
-
-
 def uncertainty(initial: ModelParameters, fitted: ModelParameters, J: np.ndarray, r: np.ndarray,
                 z: np.ndarray, start_pose: tuple[np.ndarray, np.ndarray] | None = None,
                 blocks: Sequence[np.ndarray] | None = None, *, sample_hz: float | None = None) -> Uncertainty:

@@ -17,7 +17,7 @@ from integrators.runs import simulate_gait
 from sysid.datacheck import (FLAT_LOADING, DataCheck, analyse_jacobian, apply, check_runs, inspect_run,
                              unit_jacobian)
 from sysid.effects import EffectLibrary
-from sysid.lsq import FitResult, FitStatus, ParameterReport, _uncertainty
+from sysid.lsq import FitResult, FitStatus, ParameterReport, uncertainty
 from sysid.objective import Objective
 
 #: The nominal model with a torque limit at the servo's stall torque (9.9 N m): the gait demands
@@ -172,7 +172,7 @@ def test_two_parameters_that_act_as_a_product_share_a_flat_direction():
     assert f"in nearly the same way as {partner} (flat direction, singular value" in frozen.reason
     assert not ident["mu_c"].frozen
     assert ident["k1"].flat_loading > FLAT_LOADING and ident["k2"].flat_loading > FLAT_LOADING
-    report, _ = _uncertainty(params, params, J, rng.normal(size=200), params.to_unit())
+    report = uncertainty(params, params, J, rng.normal(size=200), params.to_unit()).report
     assert {r.name for r in report if "flat direction" in r.reason} == {"k1", "k2"}
 
 

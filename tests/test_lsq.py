@@ -9,7 +9,7 @@ from cobra_model.errors import InputError
 from integrators.simulator import Simulator
 from sysid.dataset import RunPlan, record
 from sysid.executor import LocalExecutor, RayExecutor
-from sysid.lsq import _uncertainty, fit_lsq
+from sysid.lsq import fit_lsq, uncertainty
 from sysid.objective import Objective
 
 TRUTH = ModelParameters.nominal().with_values(mu_c=0.22, mu_s=0.34, joint_damping=0.25, motor_km=0.0095)
@@ -60,7 +60,8 @@ def test_flat_directions_and_bounds_are_flagged():
     J[:, 0] = 0.0                                  # k1 does not change the residuals at all
     z = p.to_unit()
     z[2] = 1.0                                     # v_s on its upper bound
-    report, sv = _uncertainty(p, p.from_unit(z), J, rng.normal(size=50) * 0.1, z)
+    found = uncertainty(p, p.from_unit(z), J, rng.normal(size=50) * 0.1, z)
+    report, sv = found.report, found.singular_values
     by = {r.name: r for r in report}
     assert by["mu_c"].identifiable and np.isfinite(by["mu_c"].ci_low)
     assert not by["k1"].identifiable and "flat direction" in by["k1"].reason
