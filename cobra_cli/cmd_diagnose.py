@@ -82,6 +82,9 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(doc, indent=2, default=float))
         return 0
     print(result.verdict)
+    for d in result.structural:
+        print(f"  structural difference (not named): {d['name']} would cut the held-out cost by "
+              f"{100 * d['held_out_improvement']:.0f} % only with {d['why']}")
     for e in result.effects:
         (pname, p), = e["params"].items()
         ci = p["ci95"]
@@ -91,6 +94,9 @@ def run(args: argparse.Namespace) -> int:
     gb, ga = result.gap_before["mean"], result.gap_after["mean"]
     print(f"  held-out head final error {gb['head_final_error_m']:.4f} -> {ga['head_final_error_m']:.4f} m, "
           f"joint RMSE {gb['joint_rmse_rad']:.4f} -> {ga['joint_rmse_rad']:.4f} rad ({result.seconds:.0f} s)")
+    white = result.fits[-1].residual_whiteness
+    if white is not None:
+        print(f"  {'residuals:' if white.white else 'WARNING: residuals:'} {white.verdict}")
     print(f"report: {args.out / 'report.html'}; model with the effect: {args.out / 'augmented_params.json'}")
     return 0
 
@@ -110,13 +116,15 @@ def _write_report(result: Diagnosis, out: Path) -> None:
     for i, round_ in enumerate(result.rounds, start=1):
         page.heading(f"Candidates, round {i}")
         page.table(["effect", "fitted value", "unit", "held-out cost reduction", "held-out runs improved", "dBIC",
-                    "signature match", "refitted without it"],
+                    "signature match", "refitted without it", "physical value"],
                    [[c.name, c.value, c.unit, c.held_out_improvement, c.runs_improved, c.delta_bic, c.signature_match,
-                     "yes" if c.refit_without else "no"] for c in round_])
+                     "yes" if c.refit_without else "no", c.implausible or "yes"] for c in round_])
         page.paragraph("Evidence is against the best fit without a new effect: the current model refitted "
                        "alone, or a checked candidate's model refitted without its effect.")
     page.heading("Augmented model")
     fit = result.fits[-1]
+    if fit.residual_whiteness is not None:
+        page.paragraph(f"Residuals: {fit.residual_whiteness.verdict}")
     page.table(["name", "unit", "value", "95% low", "95% high", "note"],
                [[r.name, r.unit, r.value, r.ci_low, r.ci_high, r.reason] for r in fit.report])
     held_out_figures(result.held, out, ("fitted, no effect", "with effect"), page)

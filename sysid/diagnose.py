@@ -26,6 +26,9 @@
    whose start led its refit into a better basin of the other parameters owes its improvement
    to the basin, not to the effect, and the refit without it finds that basin too. That fit
    joins the baseline and the candidates are judged again against it.
+   A candidate that would be named but whose fitted value is no physical value of its effect
+   (:meth:`sysid.effects.Effect.implausible`) is a proxy for a difference of another structure:
+   it is reported in ``structural`` and the verdict, not named, and the next candidate is checked.
    Otherwise the report says that no candidate explains the gap and describes the signature.
 5. **Add it and refit** all free parameters with the effect on the whole training runs, starting
    from the candidate's refit (screening uses each run's first ``SCREEN_HORIZON_S`` seconds, so
@@ -90,8 +93,9 @@ class Candidate:
     ``train_cost`` is the sum of squared training residuals (screening horizon), ``held_out_cost``
     the held-out one (whole runs) and ``held_out_runs`` its per-run terms; ``added`` counts the
     parameters the effect adds; ``refit_without`` tells whether its model was refitted without
-    the effect (:func:`choose`). The evidence fields are relative to a :class:`Baseline`
-    (:meth:`judged`).
+    the effect (:func:`choose`); ``implausible`` says why its fitted value is no physical value
+    of the effect (:meth:`sysid.effects.Effect.implausible`; None: it is one). The evidence
+    fields are relative to a :class:`Baseline` (:meth:`judged`).
     """
 
     name: str
@@ -107,13 +111,15 @@ class Candidate:
     held_out_runs: np.ndarray = field(compare=False, repr=False)
     added: int
     refit_without: bool = False
+    implausible: str | None = None
 
     def to_json(self) -> dict:
         return {"name": self.name, "value": self.value, "unit": self.unit,
                 "held_out_improvement": self.held_out_improvement, "runs_improved": self.runs_improved,
                 "delta_bic": self.delta_bic,
                 "signature_match": self.signature_match, "train_cost": self.train_cost,
-                "held_out_cost": self.held_out_cost, "refit_without_effect": self.refit_without}
+                "held_out_cost": self.held_out_cost, "refit_without_effect": self.refit_without,
+                "implausible": self.implausible}
 
     def judged(self, baseline: "Baseline", n: int) -> "Candidate":
         """This candidate's evidence against ``baseline`` (``n`` training residuals, for dBIC)."""
@@ -160,18 +166,43 @@ class Diagnosis:
     fits: list[FitResult] = field(default_factory=list)
     seconds: float = 0.0
     verdict: str = ""
+    structural: list[dict] = field(default_factory=list)
 
     def to_json(self) -> dict:
         return {
             "effects": self.effects,
+            "structural": self.structural,
             "gap_before": self.gap_before,
             "gap_after": self.gap_after,
             "signature": self.signature.to_json() if self.signature else None,
             "signature_after": self.signature_after.to_json() if self.signature_after else None,
             "candidates": [[c.to_json() for c in r] for r in self.rounds],
             "verdict": self.verdict,
+            "residual_whiteness": (self.fits[-1].residual_whiteness.to_json_dict()
+                                   if self.fits and self.fits[-1].residual_whiteness else None),
             "seconds": self.seconds,
         }
+
+
+def verdict(d: Diagnosis) -> str:
+    """The diagnosis in words: the structural difference (proxies) first, then the effects named,
+    or that nothing explains the gap, with the residual signature when no effect is named."""
+    parts = []
+    if d.structural:
+        proxies = "; ".join(f"{s['name']} would cut the held-out cost by {100 * s['held_out_improvement']:.0f} % "
+                            f"but only with {s['why']}" for s in d.structural)
+        parts.append("the model's structure differs in a way no library effect explains physically ("
+                     f"{proxies}); not named")
+    if d.effects:
+        names = " and ".join(e["name"] for e in d.effects)
+        parts.append(f"missing effect{'s' if len(d.effects) > 1 else ''}: {names}; held-out final head error "
+                     f"{d.gap_before['mean']['head_final_error_m']:.4f} -> "
+                     f"{d.gap_after['mean']['head_final_error_m']:.4f} m")
+    else:
+        parts.append("no library effect explains the gap" + (" significantly" if not d.structural else ""))
+    if not d.effects or d.structural:
+        parts.append("residual signature: " + (d.signature.summary() if d.signature else "-"))
+    return "; ".join(parts)
 
 
 def signature_match(effect: Effect, sig: Signature) -> float:
@@ -381,23 +412,33 @@ def significant(c: Candidate, config: DiagnoseConfig) -> bool:
 
 
 def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: DiagnoseConfig,
-           refit_without: Callable[[Candidate], Baseline]) -> tuple[Candidate | None, list[Candidate]]:
-    """The candidate to name (or None) and all candidates, ranked, judged against the final baseline.
+           refit_without: Callable[[Candidate], Baseline]
+           ) -> tuple[Candidate | None, list[Candidate], list[Candidate]]:
+    """The candidate to name (or None), all candidates ranked and judged against the final
+    baseline, and the proxies: significant candidates whose fitted value is no physical value
+    of their effect (``implausible``), best first.
 
     Only the best candidate (:func:`rank`) can be named, and only if it is :func:`significant`
     against the baseline after its own model has been refitted without its effect
     (``refit_without(candidate)``, joined into :class:`Baseline`). Every candidate is judged
     again against the joined baseline; if the ranking's head changes (a near-tie that no longer
-    is), the new head is checked in the same way.
+    is), the new head is checked in the same way. A significant head that is implausible is set
+    aside as a proxy (it bends the model towards a difference of another structure, such as
+    another engine's or the real ground's contact) and the next candidate is checked.
     """
-    pending = list(candidates)
+    pending, proxies = list(candidates), []
     while True:
         ranked = rank([c.judged(baseline, n) for c in pending])
+        every = rank(ranked + [c.judged(baseline, n) for c in proxies])
         if not ranked or not significant(ranked[0], config):
-            return None, ranked
+            return None, every, proxies
         top = ranked[0]
+        if top.implausible:
+            proxies.append(top)
+            pending = [c for c in pending if c.name != top.name]
+            continue
         if top.refit_without:
-            return top, ranked
+            return top, every, proxies
         baseline = baseline.joined(refit_without(top))
         pending = [replace(c, refit_without=True) if c.name == top.name else c for c in pending]
 
@@ -473,10 +514,12 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             # from the fitted model no horizon continuation is needed: it already is in the basin
             fit, hold1_runs = _screen_refit(trial, fit_set, holdout, config.screen_iterations)
             augmented = fit.params
-            candidates.append(Candidate(name, augmented.value(effect.parameter.name), effect.parameter.unit,
+            value = augmented.value(effect.parameter.name)
+            candidates.append(Candidate(name, value, effect.parameter.unit,
                                         0.0, 0.0, 0.0, signature_match(effect, result.signature),
                                         2.0 * fit.cost, float(hold1_runs.sum()), augmented, hold1_runs,
-                                        len(trial.free_names) - len(current.free_names)))
+                                        len(trial.free_names) - len(current.free_names),
+                                        implausible=effect.implausible(value)))
 
         def refit_without(c: Candidate, round_: int = round_) -> Baseline:
             progress(f"round {round_ + 1}: checking {c.name}: refitting its model without it")
@@ -485,8 +528,12 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             alone, hold = _screen_refit(switched_off, fit_set, holdout, config.screen_iterations)
             return Baseline(2.0 * alone.cost, hold)
 
-        best, candidates = choose(candidates, baseline, n, config, refit_without)
+        best, candidates, proxies = choose(candidates, baseline, n, config, refit_without)
         result.rounds.append(candidates)
+        known = {s["name"] for s in result.structural}
+        result.structural += [{"name": c.name, "value": c.value, "unit": c.unit, "why": c.implausible,
+                               "held_out_improvement": c.held_out_improvement, "round": round_ + 1}
+                              for c in proxies if c.name not in known]
         if best is None:
             break
         progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
@@ -512,13 +559,6 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     result.held = pair_held_out(holdout, sims_before, sims_after)
     result.gap_before, result.gap_after = gap_summary(result.held, "before"), gap_summary(result.held, "after")
     result.signature_after = localise(list(zip(holdout, sims_after)))
-    if result.effects:
-        names = " and ".join(e["name"] for e in result.effects)
-        result.verdict = (f"missing effect{'s' if len(result.effects) > 1 else ''}: {names}; held-out final head "
-                          f"error {result.gap_before['mean']['head_final_error_m']:.4f} -> "
-                          f"{result.gap_after['mean']['head_final_error_m']:.4f} m")
-    else:
-        result.verdict = ("no candidate effect explains the gap significantly; residual signature: "
-                          + result.signature.summary())
+    result.verdict = verdict(result)
     result.seconds = time.perf_counter() - t0
     return result

@@ -9,15 +9,19 @@ enters the dynamics or the measurement, and the residual signature it predicts; 
 Every effect is already part of the simulator (``integrators.simulator``), inactive by default;
 adding its parameter to a :class:`ModelParameters` switches it on:
 
-| effect | parameter | enters |
-| --- | --- | --- |
-| ``joint_coulomb_friction`` | ``joint_coulomb`` [N m] | ``-tau_c tanh(qdot / eps)`` at every joint |
-| ``backlash`` | ``backlash`` [rad] | dead zone of that half-width on the servo loop's error |
-| ``actuator_delay`` | ``actuator_delay`` [s] | commands reach the servos late (fractional ticks interpolated) |
-| ``torque_saturation`` | ``torque_limit`` [N m] | motor torque clipped (voltage/current limit) |
-| ``anisotropic_ground_friction`` | ``lateral_friction_ratio`` [1] | sideways friction = ratio x along-body friction |
-| ``encoder_offset`` | ``encoder_offset`` [rad] | every encoder reads ``q + offset`` (the loop regulates the reading) |
-| ``link_mass_error`` | ``link_mass_error`` [kg] | mass added to (or removed from) the head module, a payload |
+| effect | parameter | enters | plausible on COBRA |
+| --- | --- | --- | --- |
+| ``joint_coulomb_friction`` | ``joint_coulomb`` [N m] | ``-tau_c tanh(qdot / eps)`` at every joint | 0-1.5 |
+| ``backlash`` | ``backlash`` [rad] | dead zone of that half-width on the servo loop's error | 0-0.05 |
+| ``actuator_delay`` | ``actuator_delay`` [s] | commands reach the servos late (fractional ticks interpolated) | 0-0.1 |
+| ``torque_saturation`` | ``torque_limit`` [N m] | motor torque clipped (voltage/current limit) | 1-9.9 |
+| ``anisotropic_ground_friction`` | ``lateral_friction_ratio`` [1] | sideways friction = ratio x along-body friction | 0.5-3 |
+| ``encoder_offset`` | ``encoder_offset`` [rad] | every encoder reads ``q + offset`` (the loop regulates the reading) | -0.1-0.1 |
+| ``link_mass_error`` | ``link_mass_error`` [kg] | mass added to (or removed from) the head module, a payload | -0.3-1.2 |
+
+A fitted value outside the last column (the reasons are beside each :class:`Effect` below), or
+on a bound, is no physical value of the effect: the workflow reports it as a proxy for a
+structural difference instead of naming it (``sysid.diagnose.choose``).
 """
 from __future__ import annotations
 
@@ -49,6 +53,10 @@ class Effect:
             changes nothing above the largest torque the model demands and acts sharply just
             below it; its screening starts are placed at fractions of that demand
             (``sysid.diagnose.start_grid``) instead of fractions of its range.
+        plausible: the values (parameter units) the physical effect can take on COBRA. A fit
+            that needs the effect outside them, or on one of its bounds, uses it as a proxy
+            for a difference of another structure (:meth:`implausible`); the workflow then
+            reports a structural difference instead of naming it.
     """
 
     name: str
@@ -59,6 +67,23 @@ class Effect:
     features: tuple[tuple[str, float], ...]
     bends: tuple[str, ...] = ()
     acts_below_demand: bool = False
+    plausible: tuple[float, float] | None = None
+
+    def implausible(self, value: float) -> str | None:
+        """Why ``value`` of the effect's parameter is not a physical value of the effect (None
+        if it is): outside :attr:`plausible`, or within 1 % of the range (unit coordinates) of
+        a bound other than the inactive value, where the fit wanted more than the bounds allow."""
+        p = self.parameter
+        unit = "" if p.unit == "1" else f" {p.unit}"
+        if self.plausible is not None and not self.plausible[0] <= value <= self.plausible[1]:
+            lo, hi = self.plausible
+            return (f"{p.name} = {value:.4g}{unit} is outside what {self.name} physically takes on COBRA "
+                    f"[{lo:g}, {hi:g}]{unit}")
+        z, z_off = float(p.to_unit_interval(value)), float(p.to_unit_interval(p.value))
+        for bound, zb in ((p.min, 0.0), (p.max, 1.0)):
+            if abs(z - zb) < 0.01 and abs(z_off - zb) > 0.01:
+                return f"{p.name} = {value:.4g}{unit} is at its bound {bound:g}{unit}: the fit wanted more"
+        return None
 
     def parameters(self, value: float | None = None, *, frozen: bool = False) -> list[Parameter]:
         """The effect's parameter at ``value`` (default: its fitting start), free unless ``frozen``."""
@@ -79,40 +104,50 @@ EFFECTS: tuple[Effect, ...] = (
            _p("joint_coulomb", "N m", 0.0, 0.0, 3.0, "Coulomb friction torque of the gearbox", group="joint_coulomb_friction"),
            0.05, "a torque -tau_c tanh(qdot / 0.05 rad/s) at every joint",
            "joint residuals on all joints, correlated with sign(qdot), largest at velocity reversals",
-           (("r_sign", 1.0), ("reversal_ratio", 1.0))),
+           (("r_sign", 1.0), ("reversal_ratio", 1.0)),
+           plausible=(0.0, 1.5)),  # up to ~15 % of the XH540's 9.9 N m stall torque lost in its gearbox
     Effect("backlash",
            _p("backlash", "rad", 0.0, 0.0, 0.2, "half-width of the transmission dead zone", group="backlash"),
            0.005, "the servo loop does not act on the first +-b of its position error",
            "joint residuals correlated with sign(qdot), a lag of about b after each reversal",
-           (("r_sign", 1.0), ("reversal_ratio", 1.0))),
+           (("r_sign", 1.0), ("reversal_ratio", 1.0)),
+           plausible=(0.0, 0.05)),  # ~3 deg: gear play (~0.25 deg) plus printed horn/coupling play
     Effect("actuator_delay",
            _p("actuator_delay", "s", 0.0, 0.0, 0.2, "command / bus latency", group="actuator_delay"),
            0.005, "every servo receives its command late by the delay",
            "joint residuals proportional to -qdot (a time shift): best lag > 0",
-           (("r_vel", 1.0), ("lag_s", 1.0))),
+           (("r_vel", 1.0), ("lag_s", 1.0)),
+           plausible=(0.0, 0.1)),  # a few cycles of a >= 20 Hz command bus
     Effect("torque_saturation",
            _p("torque_limit", "N m", SERVO_STALL_TORQUE_NM, 0.5, SERVO_STALL_TORQUE_NM,
               "motor torque limit (voltage/current)", group="torque_saturation"),
            4.0, "the motor torque is clipped at the limit",
            "joint residuals grow with commanded effort; amplitudes fall short at the fast, loaded joints",
            (("r_effort", 1.0), ("amplitude_ratio", -1.0)),
-           bends=("actuator",), acts_below_demand=True),  # bends: a weaker, more damped motor (measured)
+           bends=("actuator",), acts_below_demand=True,  # bends: a weaker, more damped motor (measured)
+           # below ~1 N m a pitch joint could not lift the next module (0.55 kg at 0.13 m: 0.7 N m)
+           plausible=(1.0, SERVO_STALL_TORQUE_NM)),
     Effect("anisotropic_ground_friction",
            _p("lateral_friction_ratio", "1", 1.0, 0.2, 5.0, "sideways / along-body friction ratio",
               log=True, group="anisotropic_ground_friction"),
            1.2, "sideways friction of every contact scaled by the ratio (along-body unchanged)",
            "head-path residual with joints matched; slip residual sideways to the body",
-           (("head_share", 1.0), ("sideways_share", 1.0))),
+           (("head_share", 1.0), ("sideways_share", 1.0)),
+           # surface anisotropy of smooth printed shells on isotropic ground stays within ~2-3x; the
+           # modules' rolling sideways is already in the rigid-body dynamics, not in this ratio
+           plausible=(0.5, 3.0)),
     Effect("encoder_offset",
            _p("encoder_offset", "rad", 0.0, -0.2, 0.2, "encoder zero offset (all joints)", group="encoder_offset"),
            0.005, "the encoders read q + offset and the servo loop regulates the reading",
            "a constant offset of the joint residuals, independent of velocity",
-           (("offset_score", 1.0),)),
+           (("offset_score", 1.0),),
+           plausible=(-0.1, 0.1)),  # +-6 deg: a horn assembled a spline tooth off, a zero set by hand
     Effect("link_mass_error",
            _p("link_mass_error", "kg", 0.0, -0.5, 2.0, "mass added to the head module (payload)", group="link_mass_error"),
            0.05, "the head module's mass (and inertia, scaled) changes by the parameter",
            "head-path residual growing over the run; joint residuals small",
-           (("head_share", 1.0), ("sideways_share", -1.0))),
+           (("head_share", 1.0), ("sideways_share", -1.0)),
+           plausible=(-0.3, 1.2)),  # half the 0.6 kg head removed, up to two modules' mass carried
 )
 
 

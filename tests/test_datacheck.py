@@ -17,7 +17,7 @@ from integrators.runs import simulate_gait
 from sysid.datacheck import (FLAT_LOADING, DataCheck, analyse_jacobian, apply, check_runs, inspect_run,
                              unit_jacobian)
 from sysid.effects import EffectLibrary
-from sysid.lsq import FitResult, FitStatus, ParameterReport, uncertainty
+from sysid.lsq import FD_STEP, FitResult, FitStatus, ParameterReport, uncertainty
 from sysid.objective import Objective
 
 #: The nominal model with a torque limit at the servo's stall torque (9.9 N m): the gait demands
@@ -142,9 +142,9 @@ def test_the_check_jacobian_is_the_least_squares_one(runs):
     objective = Objective(runs[:1], params, threads=1).truncated(1.0)
     J = unit_jacobian(objective)
     z = params.to_unit()
-    zp = z + np.array([0.0, 1e-3])
+    zp = z + np.array([0.0, FD_STEP])
     R = objective.residuals(np.array([params.as_vector(), params.from_unit(zp).as_vector()]))
-    assert np.allclose(J[:, 1], (R[1] - R[0]) / 1e-3, rtol=0, atol=1e-9 * np.abs(J).max())
+    assert np.allclose(J[:, 1], (R[1] - R[0]) / FD_STEP, rtol=0, atol=1e-9 * np.abs(J).max())
 
 
 def test_nothing_left_to_fit_is_fatal_and_apply_refuses(runs):

@@ -1,19 +1,23 @@
 """How the discrepancy workflow names a candidate (sysid.diagnose.choose), on given fit results."""
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from cobra_model import ModelParameters
 from sysid.diagnose import Baseline, Candidate, DiagnoseConfig, choose
+from sysid.effects import EffectLibrary
 
 N = 4000  # training residuals
 BASELINE = Baseline(train_rss=10_000.0, held_out_runs=np.array([100.0, 100.0, 100.0]))
 
 
-def candidate(name: str, train_rss: float, held_out_runs: list[float], signature: float = 0.5) -> Candidate:
+def candidate(name: str, train_rss: float, held_out_runs: list[float], signature: float = 0.5,
+              implausible: str | None = None) -> Candidate:
     runs = np.array(held_out_runs)
     return Candidate(name, 0.1, "1", 0.0, 0.0, 0.0, signature, train_rss, float(runs.sum()),
-                     ModelParameters.nominal(), runs, 1)
+                     ModelParameters.nominal(), runs, 1, implausible=implausible)
 
 
 class RefitWithout:
@@ -35,7 +39,7 @@ def test_a_candidate_whose_refit_without_the_effect_fits_as_well_is_not_named():
     basin = Baseline(5_990.0, np.array([80.0, 80.0, 80.0]))
     refit = RefitWithout({"mass": basin})
     cands = [candidate("mass", 6_000.0, [50.0, 50.0, 50.0]), candidate("friction", 7_000.0, [60.0, 55.0, 58.0])]
-    best, ranked = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, ranked, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert best is None and refit.calls == ["mass"]
     assert [c.name for c in ranked] == ["mass", "friction"]
     assert ranked[0].delta_bic > 0 and ranked[0].refit_without
@@ -51,7 +55,7 @@ def test_a_check_that_improves_the_baseline_can_end_a_near_tie():
                           "mass": Baseline(9_500.0, np.array([90.0, 95.0, 92.0]))})
     cands = [candidate("mass", 5_000.0, [50.0, 50.0, 50.0], signature=0.3),
              candidate("friction", 6_000.0, [53.0, 53.0, 53.0], signature=0.9)]
-    best, ranked = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, ranked, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert refit.calls == ["friction", "mass"]
     assert best is not None and best.name == "mass"
     assert np.isclose(best.held_out_improvement, 1 - 150.0 / 200.0)
@@ -60,7 +64,7 @@ def test_a_check_that_improves_the_baseline_can_end_a_near_tie():
 
 def test_a_real_effect_survives_its_check_with_unchanged_evidence():
     refit = RefitWithout({"friction": Baseline(10_500.0, np.array([110.0, 105.0, 108.0]))})
-    best, _ = choose([candidate("friction", 3_000.0, [30.0, 20.0, 25.0])], BASELINE, N, DiagnoseConfig(), refit)
+    best, _, _ = choose([candidate("friction", 3_000.0, [30.0, 20.0, 25.0])], BASELINE, N, DiagnoseConfig(), refit)
     assert refit.calls == ["friction"]
     assert best is not None and best.refit_without
     assert np.isclose(best.held_out_improvement, 1 - 75.0 / 300.0)
@@ -72,7 +76,7 @@ def test_nothing_significant_is_named_without_any_extra_refit():
     cands = [candidate("small", 9_000.0, [90.0, 90.0, 95.0]),
              candidate("one_run_worse", 8_000.0, [10.0, 10.0, 101.0]),
              candidate("bic", 9_999.0, [50.0, 50.0, 50.0])]
-    best, ranked = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, ranked, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert best is None and refit.calls == []
     assert ranked[0].name == "one_run_worse"   # the best held-out improvement, yet not named
 
@@ -81,5 +85,42 @@ def test_of_a_near_tie_the_better_signature_match_is_checked_first():
     refit = RefitWithout({n: BASELINE for n in ("a", "b")})
     cands = [candidate("a", 3_000.0, [30.0, 30.0, 30.0], signature=0.2),
              candidate("b", 3_100.0, [31.0, 31.0, 31.0], signature=0.9)]
-    best, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, _, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert best is not None and best.name == "b" and refit.calls == ["b"]
+
+
+def test_a_proxy_is_set_aside_and_the_physical_effect_behind_it_is_named():
+    """Another engine's ground: 'anisotropy' cuts the held-out cost most, but only at a ratio no
+    real surface has. It is reported as a proxy, never checked or named; 'friction', plausible and
+    significant, is named first."""
+    refit = RefitWithout({"friction": BASELINE})
+    cands = [candidate("anisotropy", 2_000.0, [20.0, 20.0, 20.0], implausible="ratio at its bound"),
+             candidate("friction", 5_000.0, [50.0, 50.0, 50.0])]
+    best, ranked, proxies = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    assert [p.name for p in proxies] == ["anisotropy"] and refit.calls == ["friction"]
+    assert best is not None and best.name == "friction"
+    assert [c.name for c in ranked] == ["anisotropy", "friction"]   # the report still shows both
+
+
+def test_an_insignificant_implausible_candidate_is_no_proxy():
+    refit = RefitWithout({})
+    best, _, proxies = choose([candidate("small", 9_000.0, [90.0, 90.0, 95.0], implausible="far out")],
+                              BASELINE, N, DiagnoseConfig(), refit)
+    assert best is None and proxies == [] and refit.calls == []
+
+
+def test_implausible_values_are_those_outside_the_physical_range_or_at_a_bound():
+    lib = EffectLibrary()
+    aniso, limit = lib["anisotropic_ground_friction"], lib["torque_saturation"]
+    assert aniso.implausible(2.0) is None and limit.implausible(2.5) is None
+    assert "outside" in aniso.implausible(0.32) and "[0.5, 3]" in aniso.implausible(0.32)
+    assert "outside" in limit.implausible(0.7)
+    # a torque limit at its inactive value (the stall torque) is inactive, not at a bound
+    assert limit.implausible(limit.parameter.max) is None
+    # every effect's realistic magnitude (benchmarks/diagnose_accuracy.py) is plausible
+    for name, value in {"joint_coulomb_friction": 0.3, "backlash": 0.02, "actuator_delay": 0.04,
+                        "encoder_offset": -0.03, "link_mass_error": 0.8}.items():
+        assert lib[name].implausible(value) is None, name
+    # an effect without a stated range: a value on the bound the fit pushed it to is no physical value
+    open_ended = replace(aniso, plausible=None)
+    assert "at its bound 5" in open_ended.implausible(4.999) and open_ended.implausible(3.9) is None
