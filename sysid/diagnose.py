@@ -479,7 +479,16 @@ def _spread(runs: Sequence[Run], n: int) -> list[Run]:
 def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParameters | None = None,
              library: EffectLibrary | None = None, config: DiagnoseConfig = DiagnoseConfig(),
              progress: Callable[[str], None] = lambda msg: None) -> Diagnosis:
-    """Run the workflow; ``params`` gives the starting values and which parameters are free."""
+    """Run the workflow; ``params`` gives the starting values and which parameters are free.
+
+    Raises:
+        InputError: without a training run or a held-out run (candidates are judged on runs
+            no fit has seen).
+    """
+    if not train or not holdout:
+        missing = " and ".join(w for w, rs in (("a training run", train), ("a held-out run", holdout)) if not rs)
+        raise InputError(f"diagnose needs {missing}: candidate effects are judged on held-out runs that no "
+                         f"fit has seen (got {len(train)} training, {len(holdout)} held-out)")
     t0 = time.perf_counter()
     library = library or EffectLibrary()
     start = params or ModelParameters.nominal()

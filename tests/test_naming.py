@@ -4,9 +4,11 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
+import pytest
 
 from cobra_model import ModelParameters
-from sysid.diagnose import Baseline, Candidate, DiagnoseConfig, choose
+from cobra_model.errors import InputError
+from sysid.diagnose import Baseline, Candidate, DiagnoseConfig, choose, diagnose
 from sysid.effects import EffectLibrary
 
 N = 4000  # training residuals
@@ -124,3 +126,10 @@ def test_implausible_values_are_those_outside_the_physical_range_or_at_a_bound()
     # an effect without a stated range: a value on the bound the fit pushed it to is no physical value
     open_ended = replace(aniso, plausible=None)
     assert "at its bound 5" in open_ended.implausible(4.999) and open_ended.implausible(3.9) is None
+
+
+def test_a_diagnosis_without_held_out_runs_says_what_is_missing():
+    with pytest.raises(InputError, match=r"needs a held-out run.*0 held-out"):
+        diagnose([object()], [])
+    with pytest.raises(InputError, match=r"needs a training run and a held-out run"):
+        diagnose([], [])
