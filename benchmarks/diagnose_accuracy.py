@@ -27,13 +27,12 @@ from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
 from sysid.effects import EffectLibrary
 from sysid.runsets import read_runs
 
-#: Realistic magnitudes of each hidden effect (SI units of its main parameter).
-MAGNITUDES = {"joint_coulomb_friction": 0.3, "backlash": 0.02, "actuator_delay": 0.04, "torque_saturation": 2.5,
-              "anisotropic_ground_friction": 2.0, "encoder_offset": 0.03, "link_mass_error": 0.8}
+LIBRARY = EffectLibrary()
+#: Realistic magnitudes of each hidden effect (SI units of its main parameter, ``Effect.realistic``).
+MAGNITUDES = {e.name: e.realistic for e in LIBRARY}
 #: Effects hidden together.
 PAIRS = ("joint_coulomb_friction+anisotropic_ground_friction", "actuator_delay+link_mass_error")
 FREE = ["mu_c", "joint_damping", "motor_km"]
-LIBRARY = EffectLibrary()
 
 
 def make_data(effects: dict[str, float], seed: int = 3):

@@ -53,6 +53,8 @@ class Effect:
             changes nothing above the largest torque the model demands and acts sharply just
             below it; its screening starts are placed at fractions of that demand
             (``sysid.diagnose.start_grid``) instead of fractions of its range.
+        realistic: a realistic magnitude of the effect on COBRA (parameter units), at which the
+            benchmarks and tests hide it.
         plausible: the values (parameter units) the physical effect can take on COBRA. A fit
             that needs the effect outside them, or on one of its bounds, uses it as a proxy
             for a difference of another structure (:meth:`implausible`); the workflow then
@@ -68,6 +70,7 @@ class Effect:
     bends: tuple[str, ...] = ()
     acts_below_demand: bool = False
     plausible: tuple[float, float] | None = None
+    realistic: float | None = None
 
     def implausible(self, value: float) -> str | None:
         """Why ``value`` of the effect's parameter is not a physical value of the effect (None
@@ -105,19 +108,19 @@ EFFECTS: tuple[Effect, ...] = (
            0.05, "a torque -tau_c tanh(qdot / 0.05 rad/s) at every joint",
            "joint residuals on all joints, correlated with sign(qdot), largest at velocity reversals",
            (("r_sign", 1.0), ("reversal_ratio", 1.0)),
-           plausible=(0.0, 1.5)),  # up to ~15 % of the XH540's 9.9 N m stall torque lost in its gearbox
+           plausible=(0.0, 1.5), realistic=0.3),  # up to ~15 % of the XH540's 9.9 N m stall torque lost in its gearbox
     Effect("backlash",
            _p("backlash", "rad", 0.0, 0.0, 0.2, "half-width of the transmission dead zone", group="backlash"),
            0.005, "the servo loop does not act on the first +-b of its position error",
            "joint residuals correlated with sign(qdot), a lag of about b after each reversal",
            (("r_sign", 1.0), ("reversal_ratio", 1.0)),
-           plausible=(0.0, 0.05)),  # ~3 deg: gear play (~0.25 deg) plus printed horn/coupling play
+           plausible=(0.0, 0.05), realistic=0.02),  # ~3 deg: gear play (~0.25 deg) plus printed horn/coupling play
     Effect("actuator_delay",
            _p("actuator_delay", "s", 0.0, 0.0, 0.2, "command / bus latency", group="actuator_delay"),
            0.005, "every servo receives its command late by the delay",
            "joint residuals proportional to -qdot (a time shift): best lag > 0",
            (("r_vel", 1.0), ("lag_s", 1.0)),
-           plausible=(0.0, 0.1)),  # a few cycles of a >= 20 Hz command bus
+           plausible=(0.0, 0.1), realistic=0.04),  # a few cycles of a >= 20 Hz command bus
     Effect("torque_saturation",
            _p("torque_limit", "N m", SERVO_STALL_TORQUE_NM, 0.5, SERVO_STALL_TORQUE_NM,
               "motor torque limit (voltage/current)", group="torque_saturation"),
@@ -126,7 +129,7 @@ EFFECTS: tuple[Effect, ...] = (
            (("r_effort", 1.0), ("amplitude_ratio", -1.0)),
            bends=("actuator",), acts_below_demand=True,  # bends: a weaker, more damped motor (measured)
            # below ~1 N m a pitch joint could not lift the next module (0.55 kg at 0.13 m: 0.7 N m)
-           plausible=(1.0, SERVO_STALL_TORQUE_NM)),
+           plausible=(1.0, SERVO_STALL_TORQUE_NM), realistic=2.5),
     Effect("anisotropic_ground_friction",
            _p("lateral_friction_ratio", "1", 1.0, 0.2, 5.0, "sideways / along-body friction ratio",
               log=True, group="anisotropic_ground_friction"),
@@ -135,19 +138,19 @@ EFFECTS: tuple[Effect, ...] = (
            (("head_share", 1.0), ("sideways_share", 1.0)),
            # surface anisotropy of smooth printed shells on isotropic ground stays within ~2-3x; the
            # modules' rolling sideways is already in the rigid-body dynamics, not in this ratio
-           plausible=(0.5, 3.0)),
+           plausible=(0.5, 3.0), realistic=2.0),
     Effect("encoder_offset",
            _p("encoder_offset", "rad", 0.0, -0.2, 0.2, "encoder zero offset (all joints)", group="encoder_offset"),
            0.005, "the encoders read q + offset and the servo loop regulates the reading",
            "a constant offset of the joint residuals, independent of velocity",
            (("offset_score", 1.0),),
-           plausible=(-0.1, 0.1)),  # +-6 deg: a horn assembled a spline tooth off, a zero set by hand
+           plausible=(-0.1, 0.1), realistic=0.03),  # +-6 deg: a horn assembled a spline tooth off, a zero set by hand
     Effect("link_mass_error",
            _p("link_mass_error", "kg", 0.0, -0.5, 2.0, "mass added to the head module (payload)", group="link_mass_error"),
            0.05, "the head module's mass (and inertia, scaled) changes by the parameter",
            "head-path residual growing over the run; joint residuals small",
            (("head_share", 1.0), ("sideways_share", -1.0)),
-           plausible=(-0.3, 1.2)),  # half the 0.6 kg head removed, up to two modules' mass carried
+           plausible=(-0.3, 1.2), realistic=0.8),  # half the 0.6 kg head removed, up to two modules' mass carried
 )
 
 
