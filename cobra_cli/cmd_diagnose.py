@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from cobra_cli.cmd_check import check_before_fit
-from cobra_cli.common import check_writable, load_params
+from cobra_cli.common import check_writable, load_params, parse_names
 from cobra_model.errors import InputError
 from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
 from sysid.runsets import expand, read_runs
@@ -49,7 +49,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--max-effects must be >= 0, got {args.max_effects}")
     start = load_params(args.params)
     if args.free:
-        start = start.with_frozen(free=[n.strip() for n in args.free.split(",") if n.strip()])
+        start = start.with_frozen(free=parse_names(args.free, "--free"))
     train_paths, val_paths = expand(args.runs)
     val_paths += [Path(p) for p in args.holdout]
     if not train_paths or not val_paths:
@@ -96,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
           f"joint RMSE {gb['joint_rmse_rad']:.4f} -> {ga['joint_rmse_rad']:.4f} rad ({result.seconds:.0f} s)")
     white = result.fits[-1].residual_whiteness
     if white is not None:
-        print(f"  {'residuals:' if white.white else 'WARNING: residuals:'} {white.verdict}")
+        print(f"  {white.console_line()}")
     print(f"report: {args.out / 'report.html'}; model with the effect: {args.out / 'augmented_params.json'}")
     return 0
 

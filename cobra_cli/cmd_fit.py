@@ -134,8 +134,7 @@ def run(args: argparse.Namespace) -> int:
     if result.interval_method:
         print(f"  intervals: {result.interval_method}")
     if result.residual_whiteness is not None:
-        print(f"{'' if result.residual_whiteness.white else 'WARNING: '}residuals: "
-              f"{result.residual_whiteness.verdict}")
+        print(result.residual_whiteness.console_line())
     for line in bound_warnings(result, fitted):
         print(line)
     print(f"wrote {out}")

@@ -264,6 +264,10 @@ class Whiteness:
     white: bool
     verdict: str
 
+    def console_line(self) -> str:
+        """``residuals: <verdict>``, prefixed ``WARNING:`` when the residuals are not white."""
+        return f"{'' if self.white else 'WARNING: '}residuals: {self.verdict}"
+
     def to_json_dict(self) -> dict:
         return {"statistic": self.statistic, "dof": self.dof, "p_value": self.p_value, "lags": self.lags,
                 "lag1_autocorrelation": self.lag1, "series": self.series, "white": self.white,
