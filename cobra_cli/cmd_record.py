@@ -7,12 +7,15 @@ Example::
 
 The run is written as it arrives (``NAME.csv`` + ``NAME.json``); motion capture is merged later,
 so the ``head_*`` cells are empty. A run stopped early (Ctrl-C, hardware error, lost servo or
-port) is still a valid run file whose sidecar notes ``partial run: <reason>``.
-Exit status: 0 completed, 1 stopped early or the bus failed, 2 bad input, 130 Ctrl-C.
+port, SIGTERM or SIGHUP) is still a valid run file whose sidecar notes ``partial run: <reason>``,
+and torque is off before the command exits.
+Exit status: 0 completed, 1 stopped early or the bus failed, 2 bad input, 130 Ctrl-C,
+128 + N when stopped by signal N (143 SIGTERM, 129 SIGHUP).
 """
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 
 from cobra_model.errors import InputError
@@ -74,4 +77,6 @@ def run(args: argparse.Namespace) -> int:
         print(result.message)
         return 0
     print(f"cobra record: stopped: {result.message}", file=sys.stderr)
+    if result.status is StopReason.TERMINATED and result.signal_name:
+        return 128 + int(signal.Signals[result.signal_name])
     return 130 if result.status is StopReason.INTERRUPTED else 1

@@ -9,6 +9,7 @@ A configuration file (TOML, or YAML when PyYAML is installed) has three parts; s
     control_rate_hz = 50.0      # goal/read cycles per second
     max_consecutive_failures = 5
     hardware_error_check_every = 5   # cycles between reads of Hardware Error Status
+    bus_watchdog_ms = 100       # a servo that hears nothing this long stops (20..2540, x20)
 
     [servo]                     # written to every servo at connect (raw register values)
     model_number = 1100         # what every ping must answer (XH540-W270)
@@ -99,7 +100,11 @@ class BusConfig:
         control_rate_hz: cycles per second of the streaming loop [Hz].
         joint_limit_rad: commands are clamped to +-this [rad].
         max_consecutive_failures: failed cycles in a row after which streaming stops.
-        hardware_error_check_every: cycles between two reads of Hardware Error Status.
+        hardware_error_check_every: cycles between two reads of Hardware Error Status (and of
+            Bus Watchdog).
+        bus_watchdog_ms: each servo's Bus Watchdog (98) while torque is on [ms]: a servo that
+            receives no instruction packet for this long stops where it is (a pulled bus cable,
+            a frozen or killed host). A multiple of 20 ms in 20..2540.
         servo: registers written to every servo.
         source: where the configuration was read from (for messages), or None.
     """
@@ -112,6 +117,7 @@ class BusConfig:
     joint_limit_rad: float = math.radians(MAX_JOINT_LIMIT_DEG)
     max_consecutive_failures: int = 5
     hardware_error_check_every: int = 5
+    bus_watchdog_ms: int = 100
     servo: ServoSettings = ServoSettings()
     source: str | None = None
 
@@ -155,6 +161,7 @@ class BusConfig:
             "control_rate_hz": self.control_rate_hz,
             "max_consecutive_failures": self.max_consecutive_failures,
             "hardware_error_check_every": self.hardware_error_check_every,
+            "bus_watchdog_ms": self.bus_watchdog_ms,
             "servo": {
                 "model_number": self.servo.model_number,
                 "operating_mode": self.servo.operating_mode.name.lower(),
@@ -269,7 +276,17 @@ def bus_config_from_dict(data: Any, *, source: str) -> BusConfig:
     rate = bus.get_float("control_rate_hz", 50.0, 0.0, 1000.0, lo_open=True)
     max_failures = bus.get_int("max_consecutive_failures", 5, 1, 1000)
     check_every = bus.get_int("hardware_error_check_every", 5, 1, 10_000)
+    unit_ms = round(1e3 * ct.BUS_WATCHDOG_UNIT_S)
+    watchdog_ms = bus.get_int("bus_watchdog_ms", 100, unit_ms, unit_ms * ct.BUS_WATCHDOG.valid[1])
     bus.check_no_unknown_keys()
+    if watchdog_ms % unit_ms:
+        raise InputError(f"{source}: [bus] bus_watchdog_ms = {watchdog_ms}: the servos count it in "
+                         f"{unit_ms} ms units; expected a multiple of {unit_ms}")
+    if watchdog_ms < 3e3 / rate:
+        raise InputError(
+            f"{source}: [bus] bus_watchdog_ms = {watchdog_ms}: shorter than 3 control periods "
+            f"({3e3 / rate:.0f} ms at {rate:g} Hz), so one late or retried cycle would stop the servos; "
+            f"expected at least {unit_ms * math.ceil(3e3 / rate / unit_ms)}")
     bus_time = estimated_bus_time_s(NUM_JOINTS, baud)
     if bus_time >= 1.0 / rate:
         raise InputError(
@@ -328,6 +345,7 @@ def bus_config_from_dict(data: Any, *, source: str) -> BusConfig:
         joint_limit_rad=math.radians(limit_deg),
         max_consecutive_failures=max_failures,
         hardware_error_check_every=check_every,
+        bus_watchdog_ms=watchdog_ms,
         servo=settings,
         source=source,
     )

@@ -131,7 +131,10 @@ POSITION_I_GAIN = Field("Position I Gain", 82, 2, True, 0, valid=(0, 16383))
 POSITION_P_GAIN = Field("Position P Gain", 84, 2, True, 800, valid=(0, 16383))
 FEEDFORWARD_2ND_GAIN = Field("Feedforward 2nd Gain", 88, 2, True, 0, valid=(0, 16383))
 FEEDFORWARD_1ST_GAIN = Field("Feedforward 1st Gain", 90, 2, True, 0, valid=(0, 16383))
-BUS_WATCHDOG = Field("Bus Watchdog", 98, 1, True, 0, valid=(0, 127))
+BUS_WATCHDOG = Field("Bus Watchdog", 98, 1, True, 0, signed=True, valid=(0, 127))
+#: Bus Watchdog (98) unit [s]; the register reads -1 once the watchdog has stopped the servo.
+BUS_WATCHDOG_UNIT_S = 0.020
+BUS_WATCHDOG_TRIPPED = -1
 GOAL_PWM = Field("Goal PWM", 100, 2, True, 885, signed=True, valid=(-885, 885))
 GOAL_CURRENT = Field("Goal Current", 102, 2, True, 2047, signed=True, valid=(-2047, 2047))
 GOAL_VELOCITY = Field("Goal Velocity", 104, 4, True, 0, signed=True, valid=(-1023, 1023))
@@ -149,6 +152,9 @@ VELOCITY_TRAJECTORY = Field("Velocity Trajectory", 136, 4, False, 0, signed=True
 POSITION_TRAJECTORY = Field("Position Trajectory", 140, 4, False, 2048, signed=True)
 PRESENT_INPUT_VOLTAGE = Field("Present Input Voltage", 144, 2, False, 120)
 PRESENT_TEMPERATURE = Field("Present Temperature", 146, 1, False, 30)
+
+#: Goal registers, read-only while the Bus Watchdog has stopped the servo.
+GOAL_FIELDS: tuple[Field, ...] = (GOAL_PWM, GOAL_CURRENT, GOAL_VELOCITY, GOAL_POSITION)
 
 #: Every field above, in address order.
 FIELDS: tuple[Field, ...] = tuple(sorted((v for v in list(globals().values()) if isinstance(v, Field)),

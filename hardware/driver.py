@@ -6,8 +6,9 @@
   hardware error status, turns torque off, writes the operating mode, PWM limit and position
   limits (EEPROM: only when they differ), the position gains and the profile, and leaves
   torque off;
-  :meth:`DynamixelBus.torque_on` then holds the present pose before enabling torque, so
-  nothing jumps.
+  :meth:`DynamixelBus.torque_on` then holds the present pose and arms each servo's Bus
+  Watchdog (98) before enabling torque, so nothing jumps, and a servo that stops hearing the
+  host (pulled cable, frozen or killed host) stops by itself after ``bus_watchdog_ms``.
 * :meth:`DynamixelBus.send_goal` clamps joint angles to the configured limit and sends them
   with one GroupSyncWrite (broadcast, no reply).
 * :meth:`DynamixelBus.read_state` reads Present Current, Velocity and Position of every servo
@@ -159,11 +160,14 @@ class DynamixelBus:
                                            ct.PRESENT_STATE_LENGTH)
         self._error_reader = GroupSyncRead(self._port, self._packet, ct.HARDWARE_ERROR_STATUS.address,
                                            ct.HARDWARE_ERROR_STATUS.size)
+        self._watchdog_reader = GroupSyncRead(self._port, self._packet, ct.BUS_WATCHDOG.address,
+                                              ct.BUS_WATCHDOG.size)
         for servo_id in self._ids:
             self._goal_writer.addParam(servo_id, [0] * ct.GOAL_POSITION.size)
             self._torque_writer.addParam(servo_id, [0])
             self._state_reader.addParam(servo_id)
             self._error_reader.addParam(servo_id)
+            self._watchdog_reader.addParam(servo_id)
 
     # -- naming -------------------------------------------------------------------------------
     def name(self, servo_id: int) -> str:
@@ -245,6 +249,7 @@ class DynamixelBus:
         servo = self.config.servo
         writes = (
             (ct.TORQUE_ENABLE, 0),
+            (ct.BUS_WATCHDOG, 0),  # off, which also clears a watchdog stop of an earlier session
             (ct.OPERATING_MODE, int(servo.operating_mode)),
             (ct.PWM_LIMIT, servo.pwm_limit),
             (ct.POSITION_P_GAIN, servo.position_p_gain),
@@ -299,8 +304,8 @@ class DynamixelBus:
         raise ConnectError(f"{self.name(servo_id)} refused {field.name} ({field.address}) = {value}: {reason}")
 
     def torque_on(self) -> JointState:
-        """Hold the present pose (goal = present position, clamped to the joint limits), then
-        enable torque on every servo.
+        """Hold the present pose (goal = present position, clamped to the joint limits), arm
+        the Bus Watchdog (``config.bus_watchdog_ms``), then enable torque on every servo.
 
         Returns:
             The measured pose.
@@ -316,6 +321,9 @@ class DynamixelBus:
         if state is None:
             raise ConnectError(f"cannot read the present pose before torque on: {self.stats.last_failure}")
         self.send_goal(state.q_rad)
+        units = round(self.config.bus_watchdog_ms * 1e-3 / ct.BUS_WATCHDOG_UNIT_S)
+        for servo_id in self._ids:
+            self._write(servo_id, ct.BUS_WATCHDOG, units)
         for servo_id in self._ids:
             self._write(servo_id, ct.TORQUE_ENABLE, 1)
         return state
@@ -419,6 +427,16 @@ class DynamixelBus:
             self._failed("Hardware Error Status with undefined bits (corrupted reply)")
             return None
         return {i: bits for i, bits in errors.items() if bits}
+
+    def read_watchdog_stops(self) -> list[int] | None:
+        """IDs whose Bus Watchdog has stopped them (register -1: they heard nothing for
+        ``bus_watchdog_ms`` and now refuse goals), or None when the read failed."""
+        result = self._guard(self._watchdog_reader.txRxPacket)
+        if result != COMM_SUCCESS:
+            self._failed(self._packet.getTxRxResult(result))
+            return None
+        return [i for i in self._ids if to_signed(self._watchdog_reader.getData(i, ct.BUS_WATCHDOG.address, 1), 1)
+                == ct.BUS_WATCHDOG_TRIPPED]
 
     def find_silent_servos(self) -> list[int]:
         """IDs that do not answer a ping (two attempts each; ~70 ms per silent servo)."""

@@ -11,6 +11,12 @@ What is emulated:
   off, read-only fields, value ranges (Data Range error), goal positions outside the position
   limits (Data Limit error), Status Return Level, Hardware Error Status with the alert bit in
   every status packet and torque off as the Shutdown register says;
+* the Bus Watchdog (98): a servo with torque on that receives no instruction packet (addressed
+  to it or broadcast) for longer than its setting stops where it is; the register then reads
+  -1 and goal writes are refused (Access error) until 0 is written;
+* encoder offsets (``encoder_offsets_rad``): each encoder reads the joint angle plus a constant
+  that the driver's configuration does not know (a mis-set zero), and the servo's position loop
+  acts on that reading, as a real one would;
 * instructions ping, read, write, sync read, sync write and bulk read, unicast or broadcast
   (broadcasts of write and sync write get no reply; sync and bulk reads are answered servo by
   servo in the requested order); other instructions get an Instruction error;
@@ -19,7 +25,8 @@ What is emulated:
 * the velocity-based profile (Profile Velocity/Acceleration) that turns Goal Position into
   Position Trajectory, which the plant then tracks;
 * faults (:mod:`hardware.faults`): corrupted CRCs, dropped replies, a servo falling silent,
-  hardware error bits, a pulled cable.
+  hardware error bits (with the input voltage sagging in a brownout), a cut bus cable, a
+  pulled USB cable.
 
 Timing: one thread serves the bus and steps the plant, so packets are answered between plant
 steps, never during one. The plant follows the wall clock: whenever it is at least
@@ -56,7 +63,7 @@ from cobra_model.errors import InputError
 from hardware import control_table as ct
 from hardware.config import JointConfig
 from hardware.control_table import POSITION_MODES, ControlTable, HardwareError, OperatingMode
-from hardware.faults import HARDWARE_FAULT_BITS, Fault, FaultKind
+from hardware.faults import BROWNOUT_VOLTAGE_V, HARDWARE_FAULT_BITS, Fault, FaultKind
 from hardware.plant import Plant
 from hardware.protocol import (
     ALERT_BIT,
@@ -104,6 +111,8 @@ class EmulatorStats:
         dropped: status packets withheld by a ``drop`` fault.
         corrupted: status packets sent with a wrong CRC by a ``crc`` fault.
         intact_sync_reads: sync reads every addressed servo answered intact, by start address.
+        watchdog_stops_s: servo ID -> when its Bus Watchdog stopped it [s of emulated time after
+            the first torque on, like fault times].
         closed: the pty is closed (stopped, unplugged or failed).
         error: why the emulator failed (e.g. the simulation diverged), or None.
         notes: remarks for the operator (e.g. about gains the plant cannot take).
@@ -118,6 +127,7 @@ class EmulatorStats:
     dropped: int = 0
     corrupted: int = 0
     intact_sync_reads: dict[int, int] = field(default_factory=dict)
+    watchdog_stops_s: dict[int, float] = field(default_factory=dict)
     closed: bool = False
     error: str | None = None
     notes: list[str] = field(default_factory=list)
@@ -138,6 +148,8 @@ class _Servo:
         self.joint = joint
         self.table = ControlTable(joint.servo_id, model_number)
         self.silent = False
+        #: Emulated time [s] of the last instruction packet this servo received.
+        self.last_heard_s = 0.0
         #: Profile generator state in servo angle [rad] and [rad/s].
         self.traj_rad = 0.0
         self.traj_vel = 0.0
@@ -173,7 +185,26 @@ class _Servo:
                 return StatusError.DATA_LIMIT
             if f is ct.TORQUE_ENABLE and value == 1 and self.table.hardware_error:
                 return StatusError.RESULT_FAIL
+            if self.watchdog_stopped and (f in ct.GOAL_FIELDS or (f is ct.BUS_WATCHDOG and value != 0)):
+                return StatusError.ACCESS
         return StatusError.NONE
+
+    @property
+    def watchdog_stopped(self) -> bool:
+        """The Bus Watchdog has stopped this servo (register -1)."""
+        return self.table.get(ct.BUS_WATCHDOG) == ct.BUS_WATCHDOG_TRIPPED
+
+    def watchdog_due(self, now_s: float) -> bool:
+        """Torque on, the watchdog armed, and nothing heard for longer than it allows."""
+        setting = self.table.get(ct.BUS_WATCHDOG)
+        return (self.table.torque_enabled and setting > 0
+                and now_s - self.last_heard_s > setting * ct.BUS_WATCHDOG_UNIT_S)
+
+    def stop_by_watchdog(self) -> None:
+        """Hold where it is and refuse goals (Bus Watchdog Error)."""
+        self.table.set(ct.BUS_WATCHDOG, ct.BUS_WATCHDOG_TRIPPED)
+        self.table.set(ct.GOAL_POSITION, self.table.get(ct.PRESENT_POSITION))
+        self.traj_rad, self.traj_vel = float(pulses_to_rad(self.table.get(ct.PRESENT_POSITION))), 0.0
 
 
 class BusEmulator:
@@ -186,6 +217,8 @@ class BusEmulator:
             has no servo on the bus (it stays limp).
         model_number: what pings answer.
         faults: scheduled faults; more can be added with :meth:`inject`.
+        encoder_offsets_rad: (11,) what each joint's encoder reads at joint angle 0 [rad, joint
+            frame], unknown to the driver (default none).
         physics_period_s: smallest lag behind the wall clock worth a plant step [s].
         max_advance_s: longest single plant step [s] (bounds how long a packet may wait).
         max_lag_s: largest lag that is caught up; beyond it emulated time slips [s].
@@ -193,7 +226,7 @@ class BusEmulator:
 
     def __init__(self, plant: Plant, *, joints: Sequence[JointConfig] | None = None,
                  model_number: int = ct.XH540_W270_MODEL_NUMBER, faults: Sequence[Fault] = (),
-                 physics_period_s: float = 1e-3, max_advance_s: float = 5e-3,
+                 encoder_offsets_rad: Sequence[float] | None = None, physics_period_s: float = 1e-3, max_advance_s: float = 5e-3,
                  max_lag_s: float = 0.1) -> None:
         self._plant = plant
         self._lock = threading.RLock()
@@ -204,6 +237,12 @@ class BusEmulator:
         self._q = np.zeros(NUM_JOINTS)
         self._offsets = np.array([s.joint.zero_offset_rad for s in self._servos])
         self._directions = np.array([s.joint.direction for s in self._servos], dtype=float)
+        encoder = np.zeros(NUM_JOINTS) if encoder_offsets_rad is None else np.asarray(encoder_offsets_rad, float)
+        if encoder.shape != (NUM_JOINTS,) or not np.all(np.isfinite(encoder)):
+            raise InputError(f"encoder_offsets_rad: expected {NUM_JOINTS} finite angles [rad] in joint order, "
+                             f"got {encoder_offsets_rad!r}")
+        #: Encoder offset of each servo's joint [rad].
+        self._encoder = encoder[self._index]
         self._faults: list[Fault] = []
         for fault in faults:
             self.inject(fault)
@@ -383,12 +422,17 @@ class BusEmulator:
             self._plant.set_gains(*(self._per_joint(f) for f in (
                 ct.POSITION_P_GAIN, ct.POSITION_I_GAIN, ct.POSITION_D_GAIN, ct.PWM_LIMIT)))
             self._gains_dirty = False
+        for s in self._servos:
+            if s.watchdog_due(self._emulated_s):
+                s.stop_by_watchdog()
+                since = self._emulated_s - (self._motion_start_s or 0.0)
+                self._stats.watchdog_stops_s[s.joint.servo_id] = since
         enabled = np.array([s.table.torque_enabled for s in self._servos])
         for s, on in zip(self._servos, enabled):
             self._profile_step(s, dt, on)
         traj = np.array([s.traj_rad for s in self._servos])
         goal, torque = self._q.copy(), np.zeros(NUM_JOINTS, dtype=bool)
-        goal[self._index] = servo_to_joint_rad(traj, self._offsets, self._directions)
+        goal[self._index] = servo_to_joint_rad(traj, self._offsets, self._directions) - self._encoder
         torque[self._index] = enabled
         self._update_present(*self._plant.advance(dt, goal, torque))
         self._emulated_s += dt
@@ -429,7 +473,7 @@ class BusEmulator:
         """Present registers from the plant's joint angles, velocities and currents, (11,) each."""
         self._q = np.asarray(q, dtype=float)
         idx = self._index
-        pos = rad_to_pulses(joint_to_servo_rad(self._q[idx], self._offsets, self._directions))
+        pos = rad_to_pulses(joint_to_servo_rad(self._q[idx] + self._encoder, self._offsets, self._directions))
         vel = rad_s_to_velocity_units(self._directions * np.asarray(dq)[idx])
         cur = np.clip(amp_to_current_units(self._directions * np.asarray(current)[idx]), *_INT16)
         tick = int(self._emulated_s * 1000.0) % 32768
@@ -457,8 +501,14 @@ class BusEmulator:
                 self._by_id[fault.servo_id].silent = True
             elif fault.kind is FaultKind.UNPLUG:
                 self._stop.set()
+            elif fault.kind is FaultKind.CUT:
+                for s in self._servos:
+                    s.silent = True
             else:
-                self._set_hardware_error(self._by_id[fault.servo_id], HARDWARE_FAULT_BITS[fault.kind])
+                servo = self._by_id[fault.servo_id]
+                if fault.kind is FaultKind.VOLTAGE:
+                    servo.table.set(ct.PRESENT_INPUT_VOLTAGE, round(10 * BROWNOUT_VOLTAGE_V))
+                self._set_hardware_error(servo, HARDWARE_FAULT_BITS[fault.kind])
 
     @staticmethod
     def _set_hardware_error(s: _Servo, bit: HardwareError) -> None:
@@ -478,6 +528,11 @@ class BusEmulator:
 
     def _dispatch(self, packet: Packet) -> bytes:
         """Everything the bus answers to ``packet`` (possibly nothing)."""
+        if packet.crc_ok:
+            addressed = self._servos if packet.servo_id == BROADCAST_ID else [self._by_id.get(packet.servo_id)]
+            for s in addressed:
+                if s is not None and not s.silent:
+                    s.last_heard_s = self._emulated_s
         if packet.servo_id == BROADCAST_ID:
             if not packet.crc_ok:
                 self._stats.crc_errors += 1

@@ -4,7 +4,7 @@ A fault starts ``at_s`` seconds of emulated time after the first Torque Enable =
 driver starts moving the robot), so a schedule means the same thing whatever the connect phase
 took. Spelling: ``KIND[:ID][@SECONDS][xCOUNT]``, e.g. ``crc@1.5x3`` (corrupt the CRC of the
 next 3 status packets from 1.5 s on), ``silent:5@2`` (servo 5 stops answering at 2 s),
-``overload:3@2.5``, ``unplug@4``.
+``overload:3@2.5``, ``cut@3``, ``unplug@4``.
 
 Kinds:
 
@@ -14,8 +14,13 @@ Kinds:
 * ``silent`` (ID): the servo ignores every packet from then on.
 * ``overload``, ``overheating`` (ID): Hardware Error Status gets that bit and, as the default
   Shutdown (63) register says, the servo turns its torque off.
-* ``voltage`` (ID): the input-voltage bit, which the default Shutdown leaves torque on for.
-* ``unplug``: the pty is closed, as when the cable is pulled.
+* ``voltage`` (ID): a brownout: Present Input Voltage (144) sags to
+  :data:`BROWNOUT_VOLTAGE_V`, below the Min Voltage Limit, and the input-voltage bit is set,
+  which the default Shutdown leaves torque on for.
+* ``cut``: the bus cable between the adapter and the servos is cut: no servo hears the host
+  or answers any more, the port stays open, and each servo's Bus Watchdog (98) is all that
+  stops it.
+* ``unplug``: the pty is closed, as when the USB cable of the adapter is pulled.
 """
 from __future__ import annotations
 
@@ -37,6 +42,7 @@ class FaultKind(Enum):
     OVERLOAD = "overload"
     OVERHEATING = "overheating"
     VOLTAGE = "voltage"
+    CUT = "cut"
     UNPLUG = "unplug"
 
 
@@ -46,7 +52,10 @@ HARDWARE_FAULT_BITS: dict[FaultKind, HardwareError] = {
     FaultKind.OVERHEATING: HardwareError.OVERHEATING,
     FaultKind.VOLTAGE: HardwareError.INPUT_VOLTAGE,
 }
+#: Present Input Voltage during a ``voltage`` fault [V] (the XH540's Min Voltage Limit is 9.5 V).
+BROWNOUT_VOLTAGE_V = 8.5
 _NEEDS_ID = {FaultKind.SILENT, *HARDWARE_FAULT_BITS}
+_WHOLE_BUS = {FaultKind.UNPLUG, FaultKind.CUT}
 _COUNTED = {FaultKind.CRC, FaultKind.DROP}
 
 
@@ -74,8 +83,8 @@ class Fault:
             raise InputError(f"fault {self.kind.value}: start time must be >= 0 s, got {self.at_s}")
         if self.kind in _NEEDS_ID and self.servo_id is None:
             raise InputError(f"fault {self.kind.value} needs a servo ID ({self.kind.value}:ID@SECONDS)")
-        if self.kind is FaultKind.UNPLUG and self.servo_id is not None:
-            raise InputError("fault unplug concerns the whole bus; give no servo ID")
+        if self.kind in _WHOLE_BUS and self.servo_id is not None:
+            raise InputError(f"fault {self.kind.value} concerns the whole bus; give no servo ID")
         if self.servo_id is not None and not 0 <= self.servo_id <= 252:
             raise InputError(f"fault {self.kind.value}: servo ID must be 0..252, got {self.servo_id}")
         if self.count < 1 or (self.count != 1 and self.kind not in _COUNTED):

@@ -4,7 +4,7 @@
 the pose it holds to the gait's first command in ``settle_s`` (not recorded), then runs the
 control loop for ``duration_s``: every period it sends ``gait.q_ref(t)`` (clamped to the joint
 limits) and reads the present state, and every ``hardware_error_check_every`` cycles it reads
-Hardware Error Status. Each sample is appended to the run file as it arrives
+Hardware Error Status and Bus Watchdog (a servo the watchdog stopped ends the recording). Each sample is appended to the run file as it arrives
 (:class:`~hardware.runwriter.IncrementalRunWriter`).
 
 Time: ``t`` of a sample is when its goal was sent, from the monotonic clock, relative to the
@@ -14,9 +14,12 @@ starts more than a period late skips the missed slots instead of bunching up, an
 reports the achieved rate, the jitter of the cycle starts and the skipped slots.
 
 Safety: torque goes off (and the run is closed with a ``"partial run: <reason>"`` note) on
-Ctrl-C, on any exception, on a hardware error bit of any servo, after
-``max_consecutive_failures`` failed reads in a row (the silent servos are then named), and when
-the port disappears; the cleanup itself cannot be interrupted by a second Ctrl-C.
+Ctrl-C, on SIGTERM and SIGHUP (a process manager, ``timeout``, a closed terminal), on any
+exception, on a hardware error bit of any servo, after ``max_consecutive_failures`` failed
+reads in a row (the silent servos are then named), and when the port disappears; the cleanup
+itself cannot be interrupted by a second signal. While torque is on, each servo's Bus Watchdog
+(98) stops it when the host falls silent for ``bus_watchdog_ms`` (a cable pulled between the
+adapter and the servos, a host that froze or was killed with SIGKILL).
 """
 from __future__ import annotations
 
@@ -62,8 +65,10 @@ class StopReason(Enum):
 
     COMPLETED = "completed"
     INTERRUPTED = "interrupted"
+    TERMINATED = "terminated"
     HARDWARE_ERROR = "hardware_error"
     COMM_FAILURE = "comm_failure"
+    WATCHDOG = "watchdog"
     DISCONNECTED = "disconnected"
     ERROR = "error"
 
@@ -111,6 +116,8 @@ class RecordResult:
         samples: rows written.
         timing: loop timing of the recording phase (None if it never started).
         torque: outcome of the final torque off.
+        signal_name: the terminating signal (``"SIGTERM"``, ``"SIGHUP"``) when ``status`` is
+            ``TERMINATED``.
     """
 
     status: StopReason
@@ -119,6 +126,7 @@ class RecordResult:
     samples: int
     timing: TimingReport | None
     torque: TorqueOffReport
+    signal_name: str | None = None
 
 
 class _Stop(Exception):
@@ -166,17 +174,54 @@ def port_is_pseudo_terminal(port: str) -> bool:
     return stat.S_ISCHR(st.st_mode) and os.major(st.st_rdev) in _PTY_SLAVE_MAJORS
 
 
+#: Signals that end a recording like Ctrl-C does: a process manager's or ``timeout``'s stop
+#: request, and the hang-up of a closed terminal. Their default action kills the process at
+#: once, which would leave the servos energised at their last goal.
+TERMINATING_SIGNALS: tuple[signal.Signals, ...] = (signal.SIGTERM, signal.SIGHUP)
+
+
+class Terminated(BaseException):
+    """Raised in the main thread by a :data:`TERMINATING_SIGNALS` signal during
+    :func:`record_gait` (a ``BaseException``, like ``KeyboardInterrupt``, so that no
+    ``except Exception`` on the way swallows it)."""
+
+    def __init__(self, signum: int) -> None:
+        self.signal_name = signal.Signals(signum).name
+        super().__init__(self.signal_name)
+
+
+class _TerminationHandler:
+    """Raises :class:`Terminated` while the robot is being driven; once the recording is
+    stopping (``stopping``), a signal is only noted in ``received``: the cleanup must run."""
+
+    def __init__(self) -> None:
+        self.stopping = False
+        self.received: list[str] = []
+
+    def __call__(self, signum: int, _frame: object) -> None:
+        self.received.append(signal.Signals(signum).name)
+        if not self.stopping:
+            raise Terminated(signum)
+
+
 @contextlib.contextmanager
-def _sigint_ignored() -> Iterator[None]:
-    """Ignore Ctrl-C meanwhile (main thread only), so torque off is not cut short."""
+def _signals(handler: Any, signums: tuple[int, ...]) -> Iterator[Any]:
+    """``handler`` for ``signums`` meanwhile (main thread only: elsewhere Python cannot set
+    handlers, and signals are delivered to the main thread anyway); the previous ones after."""
     if threading.current_thread() is not threading.main_thread():
-        yield
+        yield handler
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    previous = {s: signal.signal(s, handler) for s in signums}
     try:
-        yield
+        yield handler
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+def _uninterruptible() -> contextlib.AbstractContextManager[None]:
+    """Ignore Ctrl-C and the terminating signals meanwhile, so torque off is not cut short."""
+    return _signals(signal.SIG_IGN, (signal.SIGINT, *TERMINATING_SIGNALS))
 
 
 class _Session:
@@ -221,11 +266,18 @@ class _Session:
             cycle += 1
             if error_check_due or cycle % check_every == 0:
                 errors = self.bus.read_hardware_errors()
-                error_check_due = errors is None  # a failed check is repeated next cycle
+                stopped = self.bus.read_watchdog_stops()
+                error_check_due = errors is None or stopped is None  # a failed check is repeated next cycle
                 if errors:
                     raise _Stop(StopReason.HARDWARE_ERROR, "; ".join(
                         f"{self.bus.name(i)} reported a hardware error: {describe_hardware_error(bits)} "
                         f"(Hardware Error Status 0x{bits:02X})" for i, bits in errors.items()))
+                if stopped:
+                    raise _Stop(StopReason.WATCHDOG, (
+                        f"the Bus Watchdog stopped {', '.join(self.bus.name(i) for i in stopped)}: no packet "
+                        f"reached it for {self.config.bus_watchdog_ms} ms (longest interval between cycles "
+                        f"so far {1e3 * max(np.diff(timing.starts), default=0.0):.0f} ms); raise [bus] "
+                        f"bus_watchdog_ms if the host is that slow"))
             current_slot = int((time.perf_counter() - t0) / period)
             # Slots that passed while this cycle ran are skipped (those within the duration
             # are reported), not run in a burst.
@@ -267,7 +319,13 @@ def record_gait(config: BusConfig, gait: Gait, *, duration_s: float, out: str | 
             partial run with its note.
     """
     out_path = check_run_path(out, force=force)
-    say = progress or (lambda _msg: None)
+    with _signals(_TerminationHandler(), TERMINATING_SIGNALS) as handler:
+        return _record(config, gait, duration_s, out_path, force, settle_s, progress or (lambda _msg: None), handler)
+
+
+def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, force: bool, settle_s: float,
+            say: Callable[[str], None], handler: _TerminationHandler) -> RecordResult:
+    """:func:`record_gait` once its terminating-signal handler is in place."""
     bus = DynamixelBus(config)
     session = _Session(bus, config)
     timing = _Timing()
@@ -295,24 +353,16 @@ def record_gait(config: BusConfig, gait: Gait, *, duration_s: float, out: str | 
     status, reason = StopReason.COMPLETED, ""
     unexpected: BaseException | None = None
     try:
-        bus.connect()
-        held = bus.torque_on()
-        say(f"connected to {len(config.joints)} servos on {config.port}; torque on")
-        if settle_s > 0:
-            q_first = bus.clamp(gait.q_ref(0.0))
-            say(f"settling into the gait's first pose for {settle_s:g} s")
-
-            def settle_command(t: float) -> np.ndarray:
-                s = 0.5 - 0.5 * math.cos(math.pi * min(t / settle_s, 1.0))
-                return held.q_rad + s * (q_first - held.q_rad)
-
-            session.stream(settle_s, settle_command, lambda *_: None, _Timing())
-        say(f"recording {duration_s:g} s at {config.control_rate_hz:g} Hz to {out_path}")
-        session.stream(duration_s, gait.q_ref, on_sample, timing)
+        try:
+            _run_session(bus, session, config, gait, duration_s, settle_s, out_path, timing, on_sample, say)
+        finally:
+            handler.stopping = True  # from here a terminating signal no longer interrupts
     except _Stop as stop:
         status, reason = stop.status, stop.reason
     except KeyboardInterrupt:
         status, reason = StopReason.INTERRUPTED, "interrupted (Ctrl-C)"
+    except Terminated as exc:
+        status, reason = StopReason.TERMINATED, f"terminated ({exc.signal_name})"
     except Disconnected as exc:
         status, reason = StopReason.DISCONNECTED, f"port lost: {exc}"
     except ConnectError:
@@ -333,18 +383,39 @@ def record_gait(config: BusConfig, gait: Gait, *, duration_s: float, out: str | 
         notes = [] if status is StopReason.COMPLETED else [f"partial run: {reason}"]
         writer.close(notes=notes, meta={
             "timing": report.to_json() if report else None,
-            "comm": {**dataclasses.asdict(bus.stats), "samples": writer.rows},
+            "comm": {**dataclasses.asdict(bus.stats), "samples": writer.count_rows()},
             "stop": {"status": status.value, "message": message},
         })
     if unexpected is not None:
         raise unexpected
     return RecordResult(status=status, message=message, path=writer.path if writer else None,
-                        samples=writer.rows if writer else 0, timing=report, torque=torque)
+                        samples=writer.rows if writer else 0, timing=report, torque=torque,
+                        signal_name=handler.received[0] if status is StopReason.TERMINATED else None)
+
+
+def _run_session(bus: DynamixelBus, session: _Session, config: BusConfig, gait: Gait, duration_s: float,
+                 settle_s: float, out_path: Path, timing: _Timing,
+                 on_sample: Callable[[float, np.ndarray, JointState], None], say: Callable[[str], None]) -> None:
+    """Connect, torque on, settle and record (every stop is an exception; see :func:`record_gait`)."""
+    bus.connect()
+    held = bus.torque_on()
+    say(f"connected to {len(config.joints)} servos on {config.port}; torque on")
+    if settle_s > 0:
+        q_first = bus.clamp(gait.q_ref(0.0))
+        say(f"settling into the gait's first pose for {settle_s:g} s")
+
+        def settle_command(t: float) -> np.ndarray:
+            s = 0.5 - 0.5 * math.cos(math.pi * min(t / settle_s, 1.0))
+            return held.q_rad + s * (q_first - held.q_rad)
+
+        session.stream(settle_s, settle_command, lambda *_: None, _Timing())
+    say(f"recording {duration_s:g} s at {config.control_rate_hz:g} Hz to {out_path}")
+    session.stream(duration_s, gait.q_ref, on_sample, timing)
 
 
 def _shutdown(bus: DynamixelBus) -> TorqueOffReport:
-    """Torque off and close the port, immune to Ctrl-C."""
-    with _sigint_ignored():
+    """Torque off and close the port, immune to Ctrl-C and the terminating signals."""
+    with _uninterruptible():
         report = bus.torque_off()
         bus.close()
     return report
@@ -362,7 +433,8 @@ def describe_plan(config: BusConfig, gait: Gait, *, duration_s: float, settle_s:
         + f" and expect model number {servo.model_number}; read Hardware Error Status",
         "configure every servo (write, with status reply):",
     ]
-    for fld, value in ((ct.TORQUE_ENABLE, 0), (ct.OPERATING_MODE, f"{int(servo.operating_mode)} "
+    for fld, value in ((ct.TORQUE_ENABLE, 0), (ct.BUS_WATCHDOG, "0 (off; clears an earlier watchdog stop)"),
+                       (ct.OPERATING_MODE, f"{int(servo.operating_mode)} "
                                                                   f"({servo.operating_mode.name.lower()})"),
                        (ct.PWM_LIMIT, servo.pwm_limit), (ct.POSITION_P_GAIN, servo.position_p_gain),
                        (ct.POSITION_I_GAIN, servo.position_i_gain), (ct.POSITION_D_GAIN, servo.position_d_gain),
@@ -375,12 +447,14 @@ def describe_plan(config: BusConfig, gait: Gait, *, duration_s: float, settle_s:
                                  zip(config.servo_ids, config.position_limits_pulses()))
                      + "  [EEPROM: only if they differ]")
     lines += [
-        "torque on: read the present pose, write it as Goal Position (116), Torque Enable (64) = 1",
+        f"torque on: read the present pose, write it as Goal Position (116), Bus Watchdog (98) = "
+        f"{round(config.bus_watchdog_ms * 1e-3 / ct.BUS_WATCHDOG_UNIT_S)} ({config.bus_watchdog_ms} ms: a servo that "
+        f"hears nothing that long stops), Torque Enable (64) = 1",
         f"settle: {settle_s:g} s from the held pose to the gait's first command (not recorded)",
         f"record: {duration_s:g} s at {config.control_rate_hz:g} Hz = {n_cycles} cycles of "
         f"Sync Write Goal Position (116, 4 bytes) + Sync Read {ct.PRESENT_STATE_ADDRESS}.."
         f"{ct.PRESENT_STATE_ADDRESS + ct.PRESENT_STATE_LENGTH - 1} (current, velocity, position); "
-        f"Hardware Error Status every {config.hardware_error_check_every} cycles",
+        f"Hardware Error Status (70) and Bus Watchdog (98) every {config.hardware_error_check_every} cycles",
         f"  bus time per cycle >= {1e3 * estimated_bus_time_s(len(config.joints), config.baud_rate):.2f} ms "
         f"of the {1e3 * period:.1f} ms period (plus servo return delays)",
         f"  joint limit +-{math.degrees(config.joint_limit_rad):g} deg; stop after "

@@ -110,6 +110,14 @@ class IncrementalRunWriter:
         if time.monotonic() - self._last_sync >= self._fsync_interval_s:
             self._sync()
 
+    def count_rows(self) -> int:
+        """Sync the file and count the samples on disk (``rows``): a signal between writing a
+        line and counting it must not make the sidecar disagree with the file."""
+        self._sync()
+        with self.path.open("r", encoding="utf-8") as fh:
+            self.rows = sum(1 for _ in fh) - 1
+        return self.rows
+
     def close(self, *, notes: Sequence[str] = (), meta: Mapping[str, Any] | None = None) -> None:
         """Flush and sync the CSV, then replace the sidecar with the final metadata.
 
@@ -119,12 +127,8 @@ class IncrementalRunWriter:
         """
         if self._fh.closed:
             return
-        self._sync()
+        self.count_rows()
         self._fh.close()
-        # Count what is on disk: a Ctrl-C between writing a line and counting it must not
-        # make the sidecar disagree with the file.
-        with self.path.open("r", encoding="utf-8") as fh:
-            self.rows = sum(1 for _ in fh) - 1
         self.meta.update(meta or {})
         final = {**self.meta, "notes": [*self.meta.get("notes", []), *notes]}
         if not final["notes"]:

@@ -1,10 +1,12 @@
 """Batched rollouts: many environments stepped together (Pinocchio ``abaInParallel``).
 
-Every environment shares the robot, its transmission inertia (``armature``) and link masses
-(Pinocchio's ``ModelPool`` hands its models to threads, not to batch entries, so the inertia must
-be common) and may differ in every other parameter (ground, damping, motor constant, effects) and in its
-state and commands. The forces of all environments are one compiled call, the dynamics one
-``abaInParallel`` call and the update one compiled call per step.
+Environments may differ in every parameter and in their state and commands. The forces of all
+environments are one compiled call per step and so is the update. Parameters that change the
+rigid-body model itself (the transmission inertia ``armature`` and ``link_mass_error``) split
+the batch into model groups: Pinocchio's ``ModelPool`` hands one model to each thread, not to
+each batch entry, so every group's dynamics is its own ``abaInParallel`` call on its own pool.
+A least-squares Jacobian, whose ``armature`` column is such a group, thus steps in one loop
+with the others instead of in a rollout of its own.
 """
 from __future__ import annotations
 
@@ -20,30 +22,39 @@ from integrators import kernels as K
 from integrators.simulator import SimSettings, SimState, Simulator
 
 
+def model_key(params: ModelParameters) -> tuple:
+    """What of ``params`` is part of the Pinocchio model (environments with equal keys share one)."""
+    return tuple(params.per_joint("armature")), params.get("link_mass_error", 0.0)
+
+
 class BatchSimulator:
     """N simulators of one robot stepped in lock-step.
 
     Args:
         model: the robot.
-        params: one parameter set per environment (same ``armature``).
+        params: one parameter set per environment.
         settings: numerical settings shared by all.
         threads: worker threads for ABA and the kernels.
+
+    Internally the environments are stored grouped by :func:`model_key` (``_slots[k]`` is the
+    environment in storage slot ``k``); inputs and outputs are in the order of ``params``.
     """
 
     def __init__(self, model: RobotModel, params: Sequence[ModelParameters], settings: SimSettings | None = None,
                  threads: int = 2):
         if not params:
             raise InputError("a batch needs at least one parameter set")
-        arm = {(tuple(p.per_joint("armature")), p.get("link_mass_error", 0.0)) for p in params}
-        if len(arm) != 1:
-            raise InputError("all parameter sets of a batch must share 'armature' and 'link_mass_error' "
-                             "(Pinocchio's ModelPool gives one model per thread); evaluate others in other batches")
         self.sims = [Simulator(model, p, settings) for p in params]
         first = self.sims[0]
         self.settings = first.settings
         self.model = first.model
         self.threads = threads
-        self.pool = pin.ModelPool(self.model.pin_model, threads)
+        keys = [model_key(p) for p in params]
+        rank = {k: i for i, k in enumerate(dict.fromkeys(keys))}
+        self._slots = np.array(sorted(range(len(params)), key=lambda e: rank[keys[e]]), dtype=np.int64)
+        bounds = np.flatnonzero(np.diff([rank[keys[e]] for e in self._slots])) + 1
+        self._groups = [(int(a), int(b), pin.ModelPool(self.sims[self._slots[a]].model.pin_model, threads))
+                        for a, b in zip(np.r_[0, bounds], np.r_[bounds, len(params)])]
         self.act = np.ascontiguousarray(np.stack([s.act for s in self.sims]))
         self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
         self._first = first
@@ -78,6 +89,13 @@ class BatchSimulator:
                 or gidx.min() < 0 or gidx.max() >= goals.shape[1]:
             raise InputError(f"goals must be (n_ticks, G, {self.model.n_joints}) with a goal_index of {n} "
                              f"entries in 0..G-1; got goals {goals.shape}")
+        if len(states) != n:
+            raise InputError(f"rollout needs {n} initial states (one per environment), got {len(states)}")
+        slots = self._slots
+        back = np.argsort(slots)  # the storage slot of each environment
+        states = [states[e] for e in slots]
+        gidx = np.ascontiguousarray(gidx[slots])
+        act, ground = np.ascontiguousarray(self.act[slots]), np.ascontiguousarray(self.ground[slots])
         Q = np.ascontiguousarray(np.stack([st.q for st in states]))
         V = np.ascontiguousarray(np.stack([st.v for st in states]))
         Qn, Vn = np.empty_like(Q), np.empty_like(V)
@@ -97,7 +115,7 @@ class BatchSimulator:
         nj, nq = self.model.n_joints, self.model.nq
         Q_rec = np.empty((n_rec, n, nq))
         M_rec = np.empty((n_rec, n, nj))
-        offset = self.act[:, :, K.A_ENC_OFFSET]
+        offset = act[:, :, K.A_ENC_OFFSET]
         for i in range(n_steps + 1):
             if i % every == 0:
                 Q_rec[i // every] = Q
@@ -105,15 +123,16 @@ class BatchSimulator:
             if i == n_steps:
                 break
             g = goals[min(i // sub, len(goals) - 1)]
-            K.batch_pre_step(i % sub == 0, Q, V, g, gidx, integ, prev, duty, on, self.act, f.scal, self.ground,
-                          self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
-                          TAU, cur, X, F, status)
-            pin.abaInParallel(self.threads, self.pool, Q.T, V.T, TAU.T, A)
+            K.batch_pre_step(i % sub == 0, Q, V, g, gidx, integ, prev, duty, on, act, f.scal, ground,
+                             self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
+                             TAU, cur, X, F, status)
+            for a, b, pool in self._groups:
+                pin.abaInParallel(self.threads, pool, Q[a:b].T, V[a:b].T, TAU[a:b].T, A[:, a:b])
             K.batch_post_step(Q, V, A.T, f.scal, self.model.chain.floating, Qn, Vn, status)
             if status.any():
-                bad = np.flatnonzero(status)
+                bad = np.flatnonzero(status[back])
                 raise RuntimeError(f"environments {bad.tolist()} diverged at t = {i * s.dt:.4f} s (status "
-                                   f"{status[bad].tolist()})")
+                                   f"{status[back][bad].tolist()})")
             Q, Qn = Qn, Q
             V, Vn = Vn, V
-        return Q, V, Q_rec, M_rec
+        return Q[back], V[back], Q_rec[:, back], M_rec[:, back]

@@ -15,9 +15,10 @@ CPG terms are fitted at the commanded gait frequency (linear least squares on si
 offset), so the frequency term of Eq. 8 is zero by construction: a servo-driven joint follows
 its command's frequency; ``cobra compare`` reports the free-frequency fit.
 
-Evaluation is batched: all (parameter vector, run) pairs that share the transmission inertia
-step together in one :class:`integrators.batch.BatchSimulator`, and groups of parameter vectors
-are spread over an :class:`sysid.executor.Executor`.
+Evaluation is batched: all (parameter vector, run) pairs step together in one
+:class:`integrators.batch.BatchSimulator` (vectors that differ in the transmission inertia, a
+link mass or the command delay included), and chunks of parameter vectors are spread over an
+:class:`sysid.executor.Executor`.
 """
 from __future__ import annotations
 
@@ -128,42 +129,38 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
     """Simulate every run for each row of ``X`` (k, d) of free-parameter values (physical units)."""
     model = CobraModel.load()
     sets = [spec.params.update_from_vector(x) for x in np.atleast_2d(X)]
-    out: list[Simulated | None] = [None] * len(sets)
-    # parameter vectors share a batch when they share what the batch cannot vary per
-    # environment: the Pinocchio model (armature, link mass) and the command timing (delay)
-    groups: dict[tuple, list[int]] = {}
-    for i, p in enumerate(sets):
-        key = (tuple(p.per_joint("armature")), p.get("link_mass_error", 0.0), p.get("actuator_delay", 0.0))
-        groups.setdefault(key, []).append(i)
     targets = spec.targets
     n_runs = len(targets)
     n_ticks = max(len(tg.ticks) for tg in targets)
     every = max(1, int(round(1.0 / (spec.weights.sample_hz * spec.settings.dt))))
     # one extra record period so that every sample time lies inside the recorded span
     duration = max(tg.duration for tg in targets) + every * spec.settings.dt
-    for (_, _, delay), members in groups.items():
-        goals = np.empty((n_ticks, n_runs, targets[0].ticks.shape[1]))
+    # one goal sequence per (command delay, run): environments share a sequence, not a batch
+    delays = list(dict.fromkeys(p.get("actuator_delay", 0.0) for p in sets))
+    goals = np.empty((n_ticks, len(delays) * n_runs, targets[0].ticks.shape[1]))
+    for d, delay in enumerate(delays):
         for r, tg in enumerate(targets):
             ticks = delay_commands(tg.ticks, delay, spec.settings.control_dt)
-            goals[:, r] = ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
-        env_params = [sets[i] for i in members for _ in targets]
-        batch = BatchSimulator(model, env_params, spec.settings, threads=spec.threads)
-        states = []
-        for e, sim in enumerate(batch.sims):
-            start = targets[e % n_runs].start
-            pose = start.pose(model, sim.joints_reading(start.q_reading))
-            states.append(sim.rest_state(pose.q_joints, head_xy=pose.head_xy, base_quat_wxyz=pose.head_quat_wxyz))
-        _, _, q_rec, m_rec = batch.rollout(states, goals, duration, record_every=every,
-                                           goal_index=np.tile(np.arange(n_runs), len(members)))
-        t_rec = np.arange(q_rec.shape[0]) * every * spec.settings.dt
-        for k, i in enumerate(members):
-            heads, joints = [], []
-            for r, tg in enumerate(targets):
-                e = k * n_runs + r
-                heads.append(interpolate_rows(tg.t_samples, t_rec, q_rec[:, e, :2]))
-                joints.append(interpolate_rows(tg.t_samples, t_rec, m_rec[:, e]))
-            out[i] = Simulated(heads, joints)
-    return out  # type: ignore[return-value]
+            goals[:, d * n_runs + r] = ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
+    goal_index = np.array([delays.index(p.get("actuator_delay", 0.0)) * n_runs + r
+                           for p in sets for r in range(n_runs)])
+    batch = BatchSimulator(model, [p for p in sets for _ in targets], spec.settings, threads=spec.threads)
+    states = []
+    for e, sim in enumerate(batch.sims):
+        start = targets[e % n_runs].start
+        pose = start.pose(model, sim.joints_reading(start.q_reading))
+        states.append(sim.rest_state(pose.q_joints, head_xy=pose.head_xy, base_quat_wxyz=pose.head_quat_wxyz))
+    _, _, q_rec, m_rec = batch.rollout(states, goals, duration, record_every=every, goal_index=goal_index)
+    t_rec = np.arange(q_rec.shape[0]) * every * spec.settings.dt
+    out = []
+    for k in range(len(sets)):
+        heads, joints = [], []
+        for r, tg in enumerate(targets):
+            e = k * n_runs + r
+            heads.append(interpolate_rows(tg.t_samples, t_rec, q_rec[:, e, :2]))
+            joints.append(interpolate_rows(tg.t_samples, t_rec, m_rec[:, e]))
+        out.append(Simulated(heads, joints))
+    return out
 
 
 def residual_vector(spec: ObjectiveSpec, sim: Simulated) -> np.ndarray:

@@ -7,6 +7,7 @@ import pytest
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from integrators.batch import BatchSimulator
+from sysid.effects import EffectLibrary
 
 
 def test_batch_matches_single_rollouts(cobra):
@@ -24,7 +25,30 @@ def test_batch_matches_single_rollouts(cobra):
     assert not np.allclose(Q[0, :2] - states[0].q[:2], Q[2, :2] - states[2].q[:2])  # different physics
 
 
-def test_batch_requires_shared_armature(cobra):
-    p = ModelParameters.nominal()
-    with pytest.raises(InputError, match="armature"):
-        BatchSimulator(cobra, [p, p.with_values(armature=0.05)])
+def test_environments_of_other_rigid_body_models_step_together(cobra):
+    # interleaved model groups (transmission inertia, a link mass): each environment still
+    # follows its own single rollout, and the outputs come back in the order given
+    nominal = ModelParameters.nominal()
+    params = [nominal, nominal.with_values(armature=0.05), nominal.with_values(mu_c=0.4),
+              nominal.with_values(armature=0.05, k2=60.0)]
+    params.append(EffectLibrary().transform(nominal, {"link_mass_error": 0.3}))
+    batch = BatchSimulator(cobra, params, threads=2)
+    assert len(batch._groups) == 3
+    table = SidewindingGait(0.65).q_ref(np.arange(501) * 1e-3)
+    states = [s.rest_state(heading_rad=0.5 * e) for e, s in enumerate(batch.sims)]
+    Q, V, Q_rec, M_rec = batch.rollout(states, np.repeat(table[:, None, :], len(params), axis=1), 0.5,
+                                       record_every=100)
+    for e, (sim, st) in enumerate(zip(batch.sims, states)):
+        tr = sim.rollout(st, table, 0.5, record_every=100)
+        assert np.allclose(Q[e], tr.q[-1], atol=1e-12), e
+        assert np.allclose(V[e], tr.v[-1], atol=1e-10), e
+        assert np.allclose(Q_rec[:, e], tr.q, atol=1e-12), e
+        assert np.allclose(M_rec[:, e], tr.q_meas, atol=1e-12), e
+    # the heavier transmission really is another model: its joints move otherwise
+    assert not np.allclose(V[0, 6:], V[1, 6:], atol=1e-3)
+
+
+def test_a_batch_needs_one_state_per_environment(cobra):
+    batch = BatchSimulator(cobra, [ModelParameters.nominal()] * 2)
+    with pytest.raises(InputError, match="2 initial states"):
+        batch.rollout([batch.sims[0].rest_state()], np.zeros((1, 2, 11)), 0.01)

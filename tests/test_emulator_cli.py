@@ -5,6 +5,7 @@ import argparse
 import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 from typing import Iterator
 
@@ -118,3 +119,25 @@ def test_emulate_refuses_to_replace_a_file(tmp_path: Path) -> None:
     with pytest.raises(FileExistsError, match="not-a-link exists and is not a symlink; refusing to replace it"):
         args.func(args)
     assert target.read_text() == "keep"
+
+
+def test_record_stopped_by_sigterm_turns_torque_off_and_exits_143(tmp_path: Path, emulate) -> None:
+    # `cobra record` as a user runs it, stopped as `timeout` or a process manager would stop it.
+    link, _ = emulate()
+    out = tmp_path / "term.csv"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "cobra_cli.main", "record", "--config", str(EXAMPLE), "--port", str(link),
+         "--duration", "20", "--settle", "0", "--out", str(out)],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    while not (line := proc.stdout.readline()).startswith("recording"):
+        assert line, proc.stderr.read()
+    time.sleep(0.5)
+    proc.send_signal(signal.SIGTERM)
+    stdout, stderr = proc.communicate(timeout=20)
+    assert proc.returncode == 128 + signal.SIGTERM, stderr
+    assert "cobra record: stopped: terminated (SIGTERM); torque off on all 11 servos" in stderr
+    assert "(partial run)" in stdout
+    run = read_run(out)
+    assert run.meta["notes"] == ["partial run: terminated (SIGTERM)"]
+    assert run.meta["stop"]["status"] == "terminated"
+    assert 0.2 < run.t[-1] < 5.0 and run.n_samples == run.meta["comm"]["samples"]

@@ -101,6 +101,9 @@ def test_clean_run_follows_the_gait(tmp_path: Path, emulators) -> None:
     assert 40 < timing.achieved_rate_hz < 50.5
     assert run.meta["timing"] == timing.to_json()
     assert run.t[0] >= 0 and np.all(np.diff(run.t) > 0)
+    # the Bus Watchdog was armed (100 ms = 5 units) and never had to act
+    assert [emu.register(i, ct.BUS_WATCHDOG) for i in range(1, 12)] == [5] * 11
+    assert emu.stats().watchdog_stops_s == {}
 
 
 @pytest.mark.parametrize("spec", ["crc@0.4x4", "drop@0.4x4", "crc:7@0.4x2"])
@@ -205,6 +208,29 @@ def test_ctrl_c_stops_with_torque_off(tmp_path: Path, emulators, python_ctrl_c) 
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler  # restored after cleanup
 
 
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGHUP])
+def test_terminating_signal_stops_with_torque_off(tmp_path: Path, emulators, signum: int) -> None:
+    # A process manager, `timeout` or a closed terminal: their signal kills a Python process at
+    # once by default, which would leave the servos energised at their last goal.
+    emulators.append(emu := start())
+    previous = signal.getsignal(signum)
+    kill = threading.Timer(0.5, os.kill, (os.getpid(), signum))
+    kill.start()
+    try:
+        result = record(emu, tmp_path / "term.csv", duration_s=3.0)
+    finally:
+        kill.cancel()
+    name = signal.Signals(signum).name
+    assert result.status is StopReason.TERMINATED and result.signal_name == name
+    assert result.message == f"terminated ({name}); torque off on all 11 servos"
+    assert torque(emu) == [0] * 11
+    run = read_run(result.path)
+    assert_holds_every_sample(run, emu, lost_in_flight=1)
+    assert 0.2 <= run.t[-1] <= 1.0
+    assert run.meta["notes"] == [f"partial run: terminated ({name})"]
+    assert signal.getsignal(signum) is previous  # restored after cleanup
+
+
 def test_unexpected_exception_is_raised_after_torque_off(tmp_path: Path, emulators) -> None:
     emulators.append(emu := start())
     with pytest.raises(RuntimeError, match="boom"):
@@ -265,3 +291,69 @@ def test_connect_names_every_missing_wrong_or_faulty_servo(emulators) -> None:
     bus.close()
     with pytest.raises(ConnectError, match=r"joint 4 \(ID 4\): hardware error \(overload\); reboot"):
         DynamixelBus(BusConfig(port=emu.port)).connect()
+
+
+def test_cut_bus_cable_stops_every_servo_by_its_watchdog(tmp_path: Path, emulators) -> None:
+    # The cable between the adapter and the servos is cut: the port stays, no servo hears the
+    # host, so the torque off cannot reach them; their watchdog is what stops them.
+    emulators.append(emu := start([Fault(FaultKind.CUT, at_s=0.5)]))
+    result = record(emu, tmp_path / "cut.csv", duration_s=3.0)
+    assert result.status is StopReason.COMM_FAILURE
+    assert "no servo answers a ping: bus cable or servo power lost?" in result.message
+    assert result.torque.unconfirmed == tuple(range(1, 12))
+    stops = emu.stats().watchdog_stops_s
+    assert sorted(stops) == list(range(1, 12))
+    # 100 ms after the last packet each heard, i.e. at most one 20 ms cycle before the cut,
+    # plus one 1 ms physics step of the emulator
+    for servo_id, at in stops.items():
+        assert 0.5 + 0.1 - 0.025 <= at <= 0.5 + 0.1 + 0.002, (servo_id, at)
+    assert [emu.register(i, ct.BUS_WATCHDOG) for i in range(1, 12)] == [-1] * 11
+    time.sleep(0.3)  # the ideal servos settle on the pose they were stopped in (30 ms lag)
+    assert all(abs(emu.register(i, ct.PRESENT_VELOCITY)) <= 1 for i in range(1, 12))
+    run = read_run(result.path)
+    assert_holds_every_sample(run, emu)
+    assert 0.3 <= run.t[-1] <= 1.0
+
+
+class _FreezingGait:
+    """The paper's gait, but the host freezes for ``freeze_s`` once at ``at_s`` (swapping, a
+    stalled disk, a debugger)."""
+
+    def __init__(self, at_s: float, freeze_s: float) -> None:
+        self.at_s, self.freeze_s, self.frozen = at_s, freeze_s, False
+
+    def q_ref(self, t: float) -> np.ndarray:
+        if t > self.at_s and not self.frozen:
+            self.frozen = True
+            time.sleep(self.freeze_s)
+        return GAIT.q_ref(t)
+
+    def to_json(self) -> dict[str, Any]:
+        return GAIT.to_json()
+
+
+def test_a_frozen_host_is_stopped_by_the_watchdog_and_told_so(tmp_path: Path, emulators) -> None:
+    emulators.append(emu := start())
+    result = record(emu, tmp_path / "frozen.csv", duration_s=2.0, gait=_FreezingGait(0.5, 0.3))
+    assert result.status is StopReason.WATCHDOG
+    assert result.message.startswith("the Bus Watchdog stopped joint 1 (ID 1), joint 2 (ID 2)")
+    assert "no packet reached it for 100 ms (longest interval between cycles so far 3" in result.message
+    assert result.message.endswith("torque off on all 11 servos")
+    assert torque(emu) == [0] * 11
+    assert sorted(emu.stats().watchdog_stops_s) == list(range(1, 12))
+    run = read_run(result.path)
+    assert_holds_every_sample(run, emu)
+    assert run.meta["stop"]["status"] == "watchdog"
+
+
+def test_brownout_stops_with_torque_off(tmp_path: Path, emulators) -> None:
+    emulators.append(emu := start([parse_fault("voltage:2@0.5")]))
+    result = record(emu, tmp_path / "brownout.csv", duration_s=3.0)
+    assert result.status is StopReason.HARDWARE_ERROR
+    assert result.message.startswith("joint 2 (ID 2) reported a hardware error: input voltage")
+    assert result.message.endswith("torque off on all 11 servos")
+    assert emu.register(2, ct.PRESENT_INPUT_VOLTAGE) == 85  # 8.5 V, below the 9.5 V minimum
+    assert torque(emu) == [0] * 11
+    run = read_run(result.path)
+    assert_holds_every_sample(run, emu)
+    assert 0.3 <= run.t[-1] < 1.0

@@ -181,6 +181,46 @@ def test_offsets_and_directions_are_emulated() -> None:
         assert emu.register(21, ct.PRESENT_POSITION) == 2048
 
 
+def test_encoder_offsets_shift_the_reading_and_the_loop_acts_on_it() -> None:
+    # A mis-set encoder zero: the servo reads joint angle + offset and holds its goal in those
+    # readings, so the joint really stands at goal - offset.
+    offsets = np.zeros(11)
+    offsets[4] = 0.05
+    with BusEmulator(KinematicPlant(), encoder_offsets_rad=offsets) as emu:
+        assert emu.register(5, ct.PRESENT_POSITION) == 2048 + round(0.05 * 4096 / (2 * np.pi))
+        port = PortHandler(emu.port)
+        assert port.openPort()
+        packet = PacketHandler(2.0)
+        goal = 2048 + 200  # 0.307 rad read on every servo
+        for i in IDS:
+            assert packet.write4ByteTxRx(port, i, ct.GOAL_POSITION.address, goal)[0] == COMM_SUCCESS
+            assert packet.write1ByteTxRx(port, i, ct.TORQUE_ENABLE.address, 1)[0] == COMM_SUCCESS
+        assert wait_until(lambda: emu.register(5, ct.PRESENT_POSITION) == goal)
+        port.closePort()
+        q = emu._q  # the plant's joint angles
+    assert q[4] == pytest.approx(200 * 2 * np.pi / 4096 - 0.05, abs=2 * np.pi / 4096)
+    assert q[3] == pytest.approx(200 * 2 * np.pi / 4096, abs=2 * np.pi / 4096)
+
+
+def test_the_bus_watchdog_stops_a_servo_that_hears_nothing(sdk, emulator: EmulatorProcess) -> None:
+    port, packet = sdk
+    assert packet.write1ByteTxRx(port, 3, ct.BUS_WATCHDOG.address, 5)[0] == COMM_SUCCESS  # 100 ms
+    assert packet.write1ByteTxRx(port, 3, ct.TORQUE_ENABLE.address, 1)[0] == COMM_SUCCESS
+    assert packet.write4ByteTxRx(port, 3, ct.GOAL_POSITION.address, 2100)[0] == COMM_SUCCESS
+    time.sleep(0.3)  # silence
+    assert emulator.stats().watchdog_stops_s.keys() == {3}
+    assert to_signed(packet.read1ByteTxRx(port, 3, ct.BUS_WATCHDOG.address)[0], 1) == -1
+    # goals are refused until the watchdog is cleared with 0; a new setting is refused too
+    assert packet.write4ByteTxRx(port, 3, ct.GOAL_POSITION.address, 2200) == (COMM_SUCCESS, StatusError.ACCESS)
+    assert packet.write1ByteTxRx(port, 3, ct.BUS_WATCHDOG.address, 5) == (COMM_SUCCESS, StatusError.ACCESS)
+    assert packet.write1ByteTxRx(port, 3, ct.BUS_WATCHDOG.address, 0) == (COMM_SUCCESS, 0)
+    assert packet.write4ByteTxRx(port, 3, ct.GOAL_POSITION.address, 2200) == (COMM_SUCCESS, 0)
+    # torque off: an armed watchdog does not act
+    assert packet.write1ByteTxRx(port, 4, ct.BUS_WATCHDOG.address, 5)[0] == COMM_SUCCESS
+    time.sleep(0.3)
+    assert emulator.stats().watchdog_stops_s.keys() == {3}
+
+
 def test_port_link_is_a_symlink_and_never_replaces_a_file(tmp_path: Path, emulator: EmulatorProcess) -> None:
     link = tmp_path / "cobra-bus"
     link.symlink_to("/nonexistent/old-pty")

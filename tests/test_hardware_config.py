@@ -72,6 +72,10 @@ _DELETE = object()
     (("bus", "control_rate_hz"), 400.0, r"control_rate_hz = 400: one cycle needs at least 3\.\d+ ms"),
     (("bus", "max_consecutive_failures"), True, r"max_consecutive_failures: expected an integer"),
     (("bus", "prot"), "/dev/x", r"\[bus\]: unknown key\(s\) 'prot'"),
+    (("bus", "bus_watchdog_ms"), 0, r"bus_watchdog_ms: expected an integer in 20\.\.2540, got 0"),
+    (("bus", "bus_watchdog_ms"), 110, r"bus_watchdog_ms = 110: the servos count it in 20 ms units"),
+    (("bus", "bus_watchdog_ms"), 40, r"bus_watchdog_ms = 40: shorter than 3 control periods \(60 ms at 50 Hz\).*"
+                                     r"expected at least 60"),
     (("servo", "position_p_gain"), 20000, r"\[servo\]: position_p_gain: expected an integer in 0\.\.16383"),
     (("servo", "pwm_limit"), 900, r"pwm_limit: expected an integer in 0\.\.885, got 900"),
     (("servo", "operating_mode"), "velocity", r"operating_mode: expected one of 'position'"),
