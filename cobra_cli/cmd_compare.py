@@ -81,13 +81,14 @@ def write_plots(measured: Run, simulated: Run, report: GapReport,
     from viz.replay import write_replay_html
 
     pair = [("measured", measured), ("simulated", simulated)]
-    return [
-        plots.plot_head_paths(pair, paths["head_path"]),
-        plots.plot_head_errors([("simulated", report)], paths["head_error"]),
-        plots.plot_joint_responses(pair, paths["joints"]),
-        plots.plot_window_correlation([("simulated", report)], paths["window_correlation"]),
-        write_replay_html(measured, [("simulated", simulated)], paths["replay"]),
-    ]
+    written = []
+    if not report.head_omitted:
+        written += [plots.plot_head_paths(pair, paths["head_path"]),
+                    plots.plot_head_errors([("simulated", report)], paths["head_error"])]
+    written += [plots.plot_joint_responses(pair, paths["joints"]),
+                plots.plot_window_correlation([("simulated", report)], paths["window_correlation"])]
+    written.append(write_replay_html(measured, [("simulated", simulated)], paths["replay"]))
+    return written
 
 
 def run(args: argparse.Namespace) -> int:
@@ -121,6 +122,9 @@ def run(args: argparse.Namespace) -> int:
     if paths is not None:
         written = write_plots(measured, simulated, report, paths)
         # Keep stdout pure JSON with --json; the file list is a diagnostic then.
+        if report.head_omitted:
+            print("no head figures: the measured run has no head pose (the replay shows its joints on the "
+                  "simulated head pose)", file=sys.stderr if args.json else sys.stdout)
         print(f"wrote {len(written)} figures: {', '.join(map(str, written))}",
               file=sys.stderr if args.json else sys.stdout)
     return 0

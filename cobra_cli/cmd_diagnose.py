@@ -10,6 +10,7 @@ from cobra_cli.cmd_check import check_before_fit
 from cobra_cli.common import check_writable, load_params, parse_names
 from cobra_model.errors import InputError
 from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
+from sysid.report import head_text
 from sysid.runsets import expand, read_runs
 
 OUTPUTS = ("report.html", "diagnosis.json", "augmented_params.json")
@@ -92,7 +93,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"  {e['name']}: {pname} = {p['value']:.4g} {p['unit']}{ci_text}; held-out cost "
               f"-{100 * e['held_out_improvement']:.0f} %, dBIC {e['evidence']['delta_bic']:.0f}")
     gb, ga = result.gap_before["mean"], result.gap_after["mean"]
-    print(f"  held-out head final error {gb['head_final_error_m']:.4f} -> {ga['head_final_error_m']:.4f} m, "
+    print(f"  held-out head final error {head_text(gb['head_final_error_m'], ga['head_final_error_m'])}, "
           f"joint RMSE {gb['joint_rmse_rad']:.4f} -> {ga['joint_rmse_rad']:.4f} rad ({result.seconds:.0f} s)")
     white = result.fits[-1].residual_whiteness
     if white is not None:

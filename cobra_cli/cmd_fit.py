@@ -139,12 +139,15 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     print(f"wrote {out}")
     if validation:
-        from sysid.report import HtmlReport, evaluate_held_out, held_out_figures
+        from sysid.report import HtmlReport, evaluate_held_out, head_text, held_out_figures
         held = evaluate_held_out(validation, start, fitted)
-        print("held-out final head error [m] (before -> after):")
+        print("held-out runs, before -> after: final head error, joint RMSE")
         for h in held:
             b, a = h.gap_before.to_json_dict(), h.gap_after.to_json_dict()
-            print(f"  {h.name:22s} {h.freq_hz:5.2f} Hz  {b['head_final_error_m']:.4f} -> {a['head_final_error_m']:.4f}")
+            print(f"  {h.name:22s} {h.freq_hz:5.2f} Hz  head {head_text(b['head_final_error_m'], a['head_final_error_m'])}, "
+                  f"joints {b['joint_rmse_rad']['mean']:.4f} -> {a['joint_rmse_rad']['mean']:.4f} rad")
+            if a["head_omitted"]:
+                print(f"    {a['head_omitted']}")
         if report_dir is not None:
             report_dir.mkdir(parents=True, exist_ok=True)
             page = HtmlReport(f"cobra fit ({result.method}): {result.status.value}")

@@ -24,6 +24,7 @@ COMMANDS: tuple[str, ...] = (
     "check",
     "fit",
     "diagnose",
+    "check-bus",
     "record",
     "emulate",
 )

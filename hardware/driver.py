@@ -267,6 +267,30 @@ class DynamixelBus:
                 self._write(servo_id, ct.MIN_POSITION_LIMIT, low)
                 self._write(servo_id, ct.MAX_POSITION_LIMIT, high)
 
+    def broadcast_ping(self) -> dict[int, int]:
+        """Every ID that answers a broadcast ping -> its model number (a servo whose reply
+        collided or was lost is missing: ping it on its own)."""
+        data, result = self._guard(self._packet.broadcastPing, self._port)
+        if result != COMM_SUCCESS:
+            return {}
+        return {int(i): int(info[0]) for i, info in data.items()}
+
+    def ping_model(self, servo_id: int) -> int | None:
+        """The model number ``servo_id`` answers (``connect_retries`` attempts), or None."""
+        model, result, _ = self._ping(servo_id, self.connect_retries)
+        return int(model) if result == COMM_SUCCESS else None
+
+    def read_register(self, servo_id: int, field: ct.Field) -> int | None:
+        """One register of one servo (signed where the field is; ``connect_retries`` attempts),
+        or None when it does not answer."""
+        reader = {1: self._packet.read1ByteTxRx, 2: self._packet.read2ByteTxRx,
+                  4: self._packet.read4ByteTxRx}[field.size]
+        for _ in range(self.connect_retries):
+            value, result, _ = self._guard(reader, self._port, servo_id, field.address)
+            if result == COMM_SUCCESS:
+                return to_signed(value, field.size) if field.signed else int(value)
+        return None
+
     def _ping(self, servo_id: int, attempts: int) -> tuple[int, int, int]:
         for _ in range(attempts):
             model, result, error = self._guard(self._packet.ping, self._port, servo_id)

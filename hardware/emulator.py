@@ -113,6 +113,8 @@ class EmulatorStats:
         intact_sync_reads: sync reads every addressed servo answered intact, by start address.
         watchdog_stops_s: servo ID -> when its Bus Watchdog stopped it [s of emulated time after
             the first torque on, like fault times].
+        torque_off_s: servo ID -> when its torque last went off (a write or its Shutdown) [same
+            clock].
         closed: the pty is closed (stopped, unplugged or failed).
         error: why the emulator failed (e.g. the simulation diverged), or None.
         notes: remarks for the operator (e.g. about gains the plant cannot take).
@@ -128,6 +130,7 @@ class EmulatorStats:
     corrupted: int = 0
     intact_sync_reads: dict[int, int] = field(default_factory=dict)
     watchdog_stops_s: dict[int, float] = field(default_factory=dict)
+    torque_off_s: dict[int, float] = field(default_factory=dict)
     closed: bool = False
     error: str | None = None
     notes: list[str] = field(default_factory=list)
@@ -349,6 +352,7 @@ class BusEmulator:
                 self._stats, wall_time_s=wall, emulated_time_s=self._emulated_s,
                 real_time_factor=self._emulated_s / wall if wall > 0 else 1.0,
                 intact_sync_reads=dict(self._stats.intact_sync_reads),
+                watchdog_stops_s=dict(self._stats.watchdog_stops_s), torque_off_s=dict(self._stats.torque_off_s),
                 notes=[self._plant.note] if self._plant.note else [])
 
     def register(self, servo_id: int, fld: ct.Field) -> int:
@@ -425,8 +429,7 @@ class BusEmulator:
         for s in self._servos:
             if s.watchdog_due(self._emulated_s):
                 s.stop_by_watchdog()
-                since = self._emulated_s - (self._motion_start_s or 0.0)
-                self._stats.watchdog_stops_s[s.joint.servo_id] = since
+                self._stats.watchdog_stops_s[s.joint.servo_id] = self._since_motion_s()
         enabled = np.array([s.table.torque_enabled for s in self._servos])
         for s, on in zip(self._servos, enabled):
             self._profile_step(s, dt, on)
@@ -510,13 +513,17 @@ class BusEmulator:
                     servo.table.set(ct.PRESENT_INPUT_VOLTAGE, round(10 * BROWNOUT_VOLTAGE_V))
                 self._set_hardware_error(servo, HARDWARE_FAULT_BITS[fault.kind])
 
-    @staticmethod
-    def _set_hardware_error(s: _Servo, bit: HardwareError) -> None:
+    def _since_motion_s(self) -> float:
+        """Emulated time since the first torque on [s] (the clock of faults and stats)."""
+        return self._emulated_s - (self._motion_start_s or 0.0)
+
+    def _set_hardware_error(self, s: _Servo, bit: HardwareError) -> None:
         """Raise a hardware error bit; torque goes off if Shutdown (63) has that bit."""
         table = s.table
         table.set(ct.HARDWARE_ERROR_STATUS, table.hardware_error | bit)
-        if table.get(ct.SHUTDOWN) & bit:
+        if table.get(ct.SHUTDOWN) & bit and table.torque_enabled:
             table.set(ct.TORQUE_ENABLE, 0)
+            self._stats.torque_off_s[s.joint.servo_id] = self._since_motion_s()
 
     # -- packets -------------------------------------------------------------------------------
     def _on_bytes(self, data: bytes, now_s: float) -> None:
@@ -635,6 +642,8 @@ class BusEmulator:
         touched = ct.fields_in(address, len(data))
         if any(f in (ct.POSITION_P_GAIN, ct.POSITION_I_GAIN, ct.POSITION_D_GAIN, ct.PWM_LIMIT) for f in touched):
             self._gains_dirty = True
+        if torque_was_on and not s.table.torque_enabled:
+            self._stats.torque_off_s[s.joint.servo_id] = self._since_motion_s()
         if s.table.torque_enabled and not torque_was_on:
             s.traj_rad = float(pulses_to_rad(s.table.get(ct.PRESENT_POSITION)))
             s.traj_vel = 0.0

@@ -14,7 +14,8 @@ starts more than a period late skips the missed slots instead of bunching up, an
 reports the achieved rate, the jitter of the cycle starts and the skipped slots.
 
 Safety: torque goes off (and the run is closed with a ``"partial run: <reason>"`` note) on
-Ctrl-C, on SIGTERM and SIGHUP (a process manager, ``timeout``, a closed terminal), on any
+Ctrl-C, on SIGTERM and SIGHUP (a process manager, ``timeout``, a closed terminal), when a
+sample cannot be written (a full disk: the file keeps every complete sample before it), on any
 exception, on a hardware error bit of any servo, after ``max_consecutive_failures`` failed
 reads in a row (the silent servos are then named), and when the port disappears; the cleanup
 itself cannot be interrupted by a second signal. While torque is on, each servo's Bus Watchdog
@@ -43,7 +44,7 @@ from hardware import control_table as ct
 from hardware.config import BusConfig, estimated_bus_time_s
 from hardware.control_table import OperatingMode, describe_hardware_error
 from hardware.driver import BusError, ConnectError, Disconnected, DynamixelBus, JointState, TorqueOffReport
-from hardware.runwriter import IncrementalRunWriter, check_run_path
+from hardware.runwriter import IncrementalRunWriter, RunWriteError, check_run_path
 from hardware.units import joint_to_servo_rad, rad_to_pulses
 
 #: Linux device majors of pseudo-terminal slaves (/dev/pts/N): the bus emulator's ports.
@@ -69,6 +70,7 @@ class StopReason(Enum):
     HARDWARE_ERROR = "hardware_error"
     COMM_FAILURE = "comm_failure"
     WATCHDOG = "watchdog"
+    WRITE_FAILED = "write_failed"
     DISCONNECTED = "disconnected"
     ERROR = "error"
 
@@ -365,6 +367,8 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
         status, reason = StopReason.TERMINATED, f"terminated ({exc.signal_name})"
     except Disconnected as exc:
         status, reason = StopReason.DISCONNECTED, f"port lost: {exc}"
+    except RunWriteError as exc:
+        status, reason = StopReason.WRITE_FAILED, str(exc)
     except ConnectError:
         _shutdown(bus)
         raise
@@ -386,6 +390,8 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
             "comm": {**dataclasses.asdict(bus.stats), "samples": writer.count_rows()},
             "stop": {"status": status.value, "message": message},
         })
+        if writer.sidecar_error:
+            message += f"; {writer.sidecar_error}: it still says the recording did not finish"
     if unexpected is not None:
         raise unexpected
     return RecordResult(status=status, message=message, path=writer.path if writer else None,

@@ -8,7 +8,10 @@ writer therefore:
   ``os.fsync`` at most every ``fsync_interval_s`` (and at close);
 * writes the JSON sidecar at creation with a note ``"partial run: recording did not finish
   ..."``, so a file left by a killed process still reads as a (partial) run, and replaces it
-  atomically at :meth:`IncrementalRunWriter.close` with the final metadata and notes.
+  atomically at :meth:`IncrementalRunWriter.close` with the final metadata and notes;
+* when a line cannot be written (a full disk, a failing device), cuts the file back to the last
+  complete line and raises :class:`RunWriteError`; a sidecar that cannot be replaced at close
+  is left as it was (it still says the recording did not finish).
 
 The column layout is exactly that of :func:`cobra_model.runs.write_run` for a run with joint
 velocities and currents and no other tracked bodies: ``t, q_ref_1..11, q_1..11, dq_1..11,
@@ -17,11 +20,12 @@ merged later, so the ``head_*`` cells are left empty (missing samples).
 """
 from __future__ import annotations
 
+import errno
 import json
 import os
 import time
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, BinaryIO, Mapping, Sequence
 
 import numpy as np
 
@@ -39,6 +43,11 @@ COLUMNS: tuple[str, ...] = (
 UNFINISHED_NOTE = ("partial run: recording did not finish (the recorder stopped without closing "
                    "the run: crash, kill or power loss); every row on disk was received")
 _EMPTY_MOCAP = "," * (len(body_columns("head")) + len(HEAD_QUAT_COLUMNS))
+
+
+class RunWriteError(Exception):
+    """A sample could not be written (full disk, failing device); the file holds every sample
+    before it, complete."""
 
 
 def sidecar_path(csv_path: Path) -> Path:
@@ -88,24 +97,53 @@ class IncrementalRunWriter:
         self.meta: dict[str, Any] = {**meta, "format": FORMAT}
         #: Samples written (exact after :meth:`close`).
         self.rows = 0
+        #: Whether :meth:`close` replaced the sidecar (False: it could not be written).
+        self.sidecar_updated = False
+        #: Why the sidecar could not be replaced, or None.
+        self.sidecar_error: str | None = None
         self._fsync_interval_s = fsync_interval_s
         self._last_sync = 0.0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._write_sidecar({**self.meta, "notes": [*self.meta.get("notes", []), UNFINISHED_NOTE]})
-        self._fh = self.path.open("w" if force else "x", encoding="utf-8", newline="")
-        self._fh.write(",".join(COLUMNS) + "\n")
+        # unbuffered: a line is one write, so nothing half-written waits in a buffer
+        self._fh = self._open("wb" if force else "xb")
+        self._committed = 0  # bytes of complete lines on disk
+        self._write_line(",".join(COLUMNS))
         self._sync()
+
+    def _open(self, mode: str) -> BinaryIO:
+        """The CSV file, unbuffered binary (a seam for tests that make the disk fail)."""
+        return self.path.open(mode, buffering=0)
+
+    def _write_line(self, line: str) -> None:
+        """Write one complete line or, failing, cut the file back to the last complete one."""
+        data = (line + "\n").encode("ascii")
+        view = memoryview(data)
+        try:
+            while view:
+                view = view[self._fh.write(view):]
+        except OSError as exc:
+            try:
+                os.ftruncate(self._fh.fileno(), self._committed)
+            except OSError:
+                pass
+            what = "the disk is full" if exc.errno in (errno.ENOSPC, errno.EDQUOT) else "the write failed"
+            raise RunWriteError(f"cannot write sample {self.rows + 1} to {self.path}: {what} ({exc.strerror}); "
+                                f"the file keeps the {self.rows} samples before it") from exc
+        self._committed += len(data)
 
     def append(self, t: float, q_ref: np.ndarray, q: np.ndarray, dq: np.ndarray, current: np.ndarray) -> None:
         """Write one sample: time [s], commanded and measured angles [rad], velocities [rad/s]
-        and currents [A], each (11,). The line is flushed to the OS at once.
+        and currents [A], each (11,). The line is handed to the OS at once.
+
+        Raises:
+            RunWriteError: the line could not be written (the file keeps the samples before it).
         """
         for name, arr in (("q_ref", q_ref), ("q", q), ("dq", dq), ("current", current)):
             if np.shape(arr) != (NUM_JOINTS,):
                 raise ValueError(f"{name}: expected shape ({NUM_JOINTS},), got {np.shape(arr)}")
         line = ",".join((repr(float(t)), _cells(q_ref), _cells(q), _cells(dq), _cells(current))) + _EMPTY_MOCAP
-        self._fh.write(line + "\n")
-        self._fh.flush()
+        self._write_line(line)
         self.rows += 1
         if time.monotonic() - self._last_sync >= self._fsync_interval_s:
             self._sync()
@@ -113,7 +151,10 @@ class IncrementalRunWriter:
     def count_rows(self) -> int:
         """Sync the file and count the samples on disk (``rows``): a signal between writing a
         line and counting it must not make the sidecar disagree with the file."""
-        self._sync()
+        try:
+            self._sync()
+        except OSError:
+            pass  # a failing device: count what it holds
         with self.path.open("r", encoding="utf-8") as fh:
             self.rows = sum(1 for _ in fh) - 1
         return self.rows
@@ -124,6 +165,9 @@ class IncrementalRunWriter:
         Args:
             notes: sidecar ``"notes"`` (e.g. ``"partial run: <reason>"`` when stopped early).
             meta: keys merged into the metadata given at creation.
+
+        A sidecar that cannot be written (full disk) is left as it was, still noting that the
+        recording did not finish (``sidecar_updated`` False, ``sidecar_error`` why).
         """
         if self._fh.closed:
             return
@@ -133,19 +177,27 @@ class IncrementalRunWriter:
         final = {**self.meta, "notes": [*self.meta.get("notes", []), *notes]}
         if not final["notes"]:
             del final["notes"]
-        self._write_sidecar(final)
+        try:
+            self._write_sidecar(final)
+        except OSError as exc:
+            self.sidecar_error = f"{self.sidecar} could not be updated ({exc.strerror or exc})"
+            return
+        self.sidecar_updated = True
 
     def _sync(self) -> None:
-        self._fh.flush()
         os.fsync(self._fh.fileno())
         self._last_sync = time.monotonic()
 
     def _write_sidecar(self, meta: Mapping[str, Any]) -> None:
         """Write the sidecar atomically (temporary file, fsync, rename)."""
         tmp = self.sidecar.with_name(self.sidecar.name + ".tmp")
-        with tmp.open("w", encoding="utf-8") as fh:
-            json.dump(meta, fh, indent=2, default=json_default)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
+        try:
+            with tmp.open("w", encoding="utf-8") as fh:
+                json.dump(meta, fh, indent=2, default=json_default)
+                fh.write("\n")
+                fh.flush()
+                os.fsync(fh.fileno())
+        except OSError:
+            tmp.unlink(missing_ok=True)
+            raise
         os.replace(tmp, self.sidecar)

@@ -56,7 +56,9 @@ class StartObservation:
     0.4 deg to 0.05 deg. Without body tracks the yaw of the head's orientation is used.
     The joint angles are the first encoder readings less the encoder offset of the model that
     reproduces the run (:meth:`integrators.simulator.Simulator.joints_reading`), so they, and
-    with them the fitted planar pose, depend on the model.
+    with them the fitted planar pose, depend on the model. A joint-only run (no head pose in
+    any sample: recorded without motion capture) starts at the origin, heading along +x
+    (``has_head_pose`` False); only its joints can then be compared.
 
     Attributes:
         q_reading: (11,) first encoder readings [rad].
@@ -65,6 +67,7 @@ class StartObservation:
         var_point: variance [m^2] of one averaged point per coordinate, from the samples' scatter.
         head_yaw: window-mean yaw of the head's orientation [rad].
         head_yaw_var: variance of that mean [rad^2].
+        has_head_pose: False for a joint-only run (then the pose is the origin, exactly).
     """
 
     q_reading: np.ndarray
@@ -73,12 +76,13 @@ class StartObservation:
     var_point: float
     head_yaw: float
     head_yaw_var: float
+    has_head_pose: bool = True
 
     @classmethod
     def of_run(cls, run: Run) -> "StartObservation":
         ok = np.all(np.isfinite(run.head_pos), axis=1) & np.all(np.isfinite(run.head_quat), axis=1)
         if not ok.any():
-            raise InputError(f"{run.source or 'run'}: no sample has a head pose (head_* all empty)")
+            return cls(run.q[0].copy(), np.zeros((1, 2)), (), 0.0, 0.0, 0.0, has_head_pose=False)
         first = int(np.flatnonzero(ok)[0])
         window = ok & (run.t <= run.t[first] + START_WINDOW_S)
         names = tuple(name for name, pos in run.bodies.items() if np.isfinite(pos[window, :2]).all(axis=1).any())

@@ -110,12 +110,15 @@ class Dropouts:
             has the head (or past the run's end by one median interval).
         longest_at_s: time of the longest one's first missing sample [s].
         fraction: fraction of the run's samples without the head, in [0, 1].
+        joint_only: no sample has the head (a run recorded without motion capture): not a
+            dropout; its head channel is simply left out of fits and comparisons.
     """
 
     count: int = 0
     longest_s: float = 0.0
     longest_at_s: float = float("nan")
     fraction: float = 0.0
+    joint_only: bool = False
 
     @property
     def minor(self) -> bool:
@@ -228,7 +231,7 @@ class RunFindings:
                 "gaps": [{"t_s": g.t_s, "interval_s": g.interval_s} for g in self.gaps],
                 "dropouts": {"count": self.dropouts.count, "longest_s": self.dropouts.longest_s,
                              "longest_at_s": _finite(self.dropouts.longest_at_s),
-                             "fraction": self.dropouts.fraction},
+                             "fraction": self.dropouts.fraction, "joint_only": self.dropouts.joint_only},
                 "saturated_joints": [{"joint": s.joint, "kind": s.kind,
                                       "measured_swing_rad": s.measured_swing_rad,
                                       "commanded_swing_rad": s.commanded_swing_rad,
@@ -286,6 +289,8 @@ def _dropouts(t: np.ndarray, head_pos: np.ndarray, median_dt: float) -> Dropouts
     missing = np.isnan(head_pos[:, 0]) | np.isnan(head_pos[:, 1])
     if not missing.any():
         return Dropouts()
+    if missing.all():
+        return Dropouts(fraction=1.0, joint_only=True)
     edges = np.diff(np.concatenate([[0], missing.astype(int), [0]]))
     starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)   # ends: first sample after
     step = median_dt if math.isfinite(median_dt) else 0.0
@@ -530,6 +535,10 @@ class DataCheck:
                          f"(none over {DROPOUT_LONG_S:g} s, each run under {100 * DROPOUT_FRACTION:.0f} % of its "
                          f"samples): longest {worst.dropouts.longest_s:.2f} s in {worst.name}, at most "
                          f"{100 * max(f.dropouts.fraction for f in minor):.1f} % of a run")
+        joint_only = [f.name for f in every if f.dropouts.joint_only]
+        if joint_only:
+            lines.append(f"joint-only run{'s' if len(joint_only) > 1 else ''} (no head pose in any sample, recorded "
+                         f"without motion capture; the head channel is left out): {', '.join(joint_only)}")
         ident = self.identifiability
         if ident is not None:
             lines.append(ident.summary())

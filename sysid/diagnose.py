@@ -52,7 +52,7 @@ from integrators.simulator import Simulator
 from sysid.effects import Effect, EffectLibrary
 from sysid.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
 from sysid.objective import Objective
-from sysid.report import HeldOut, gap_summary, pair_held_out
+from sysid.report import HeldOut, gap_summary, head_text, pair_held_out
 from sysid.signature import Signature, localise
 
 
@@ -196,8 +196,7 @@ def verdict(d: Diagnosis) -> str:
     if d.effects:
         names = " and ".join(e["name"] for e in d.effects)
         parts.append(f"missing effect{'s' if len(d.effects) > 1 else ''}: {names}; held-out final head error "
-                     f"{d.gap_before['mean']['head_final_error_m']:.4f} -> "
-                     f"{d.gap_after['mean']['head_final_error_m']:.4f} m")
+                     + head_text(d.gap_before["mean"]["head_final_error_m"], d.gap_after["mean"]["head_final_error_m"]))
     else:
         parts.append("no library effect explains the gap" + (" significantly" if not d.structural else ""))
     if not d.effects or d.structural:

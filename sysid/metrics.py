@@ -509,6 +509,7 @@ class GapReport:
             simulated_vs_command=_scalars(self.correlation["simulated_vs_command"]),
         )
         return {
+            "head_omitted": self.head_omitted,
             "head_final_error_m": _json_float(self.head.final),
             "head_mean_error_m": _json_float(self.head.mean),
             "joint_rmse_rad": {
@@ -523,18 +524,30 @@ class GapReport:
             "resampled": self.resampled,
         }
 
+    @property
+    def head_omitted(self) -> str | None:
+        """Why there are no head metrics (no common sample has a head pose in both runs, as in a
+        joint-only run recorded without motion capture), or None when there are."""
+        if np.isfinite(self.head.distance).any():
+            return None
+        return ("no sample has a head pose in both runs (a joint-only run, e.g. recorded without "
+                "motion capture): head metrics omitted, joint metrics only")
+
     def format_table(self) -> str:
         """A plain-text table of the report (m, rad, Hz)."""
 
         def num(x: float, fmt: str = "{:9.4f}") -> str:
             return fmt.format(x) if np.isfinite(x) else f"{'n/a':>9}"
 
-        lines = [
-            "Sim-to-real gap (differences are simulated - measured)",
-            f"  {'head final error (x-y)':<28}{num(self.head.final)} m"
-            f"  at t = {num(self.head.final_t, '{:.3f}')} s",
-            f"  {'head mean error (x-y)':<28}{num(self.head.mean)} m",
-        ]
+        lines = ["Sim-to-real gap (differences are simulated - measured)"]
+        if self.head_omitted:
+            lines.append(f"  {self.head_omitted}")
+        else:
+            lines += [
+                f"  {'head final error (x-y)':<28}{num(self.head.final)} m"
+                f"  at t = {num(self.head.final_t, '{:.3f}')} s",
+                f"  {'head mean error (x-y)':<28}{num(self.head.mean)} m",
+            ]
         for name, err in self.head.body_errors.items():
             lines.append(f"  {name + ' final error (x-y)':<28}{num(err.final)} m")
         lines.append("")

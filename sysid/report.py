@@ -93,10 +93,21 @@ def pair_held_out(runs: Sequence[Run], before: Sequence[Run], after: Sequence[Ru
     return out
 
 
+def head_text(before: float | None, after: float | None) -> str:
+    """``"0.0123 -> 0.0045 m"``, or why there is no head error (joint-only runs)."""
+    if before is None or after is None:
+        return "omitted (joint-only runs: no head pose)"
+    return f"{before:.4f} -> {after:.4f} m"
+
+
 def gap_summary(held: Sequence[HeldOut], which: str) -> dict:
-    """``cobra compare`` metrics of each held-out run (``which``: "before" or "after") and their mean."""
+    """``cobra compare`` metrics of each held-out run (``which``: "before" or "after") and their mean
+    (a head metric's mean over the runs that have it; None when none has)."""
     per_run = {h.name: getattr(h, f"gap_{which}").to_json_dict() for h in held}
-    mean = {k: float(np.mean([g[k] for g in per_run.values()])) for k in ("head_final_error_m", "head_mean_error_m")}
+    mean: dict = {}
+    for k in ("head_final_error_m", "head_mean_error_m"):  # joint-only runs have no head metrics
+        values = [g[k] for g in per_run.values() if g[k] is not None]
+        mean[k] = float(np.mean(values)) if values else None
     mean["joint_rmse_rad"] = float(np.mean([g["joint_rmse_rad"]["mean"] for g in per_run.values()]))
     return {"mean": mean, "runs": per_run}
 
@@ -107,9 +118,16 @@ def held_out_figures(held: Sequence[HeldOut], out_dir: Path, labels: tuple[str, 
     from viz.replay import write_replay_html
 
     b, a = labels
-    table = {f"{h.freq_hz:g} Hz ({h.name})": {b: h.gap_before.to_json_dict()["head_final_error_m"],
-                                               a: h.gap_after.to_json_dict()["head_final_error_m"]} for h in held}
-    report.heading("Held-out runs: final head position error (paper Eq. 7)")
+    joint_only = any(h.gap_after.head_omitted for h in held)
+    metric, unit = ("joint_rmse_rad", "joint RMSE [rad]") if joint_only else ("head_final_error_m", "final head error [m]")
+
+    def value(gap: dict) -> float:
+        return gap[metric]["mean"] if joint_only else gap[metric]
+
+    table = {f"{h.freq_hz:g} Hz ({h.name})": {b: value(h.gap_before.to_json_dict()),
+                                               a: value(h.gap_after.to_json_dict())} for h in held}
+    report.heading("Held-out runs: final head position error (paper Eq. 7)" if not joint_only else
+                   "Held-out runs: joint RMSE (joint-only runs: no head pose, head metrics omitted)")
     rows = []
     for h in held:
         jb, ja = h.gap_before.to_json_dict(), h.gap_after.to_json_dict()
@@ -117,11 +135,13 @@ def held_out_figures(held: Sequence[HeldOut], out_dir: Path, labels: tuple[str, 
                      ja["head_mean_error_m"], jb["joint_rmse_rad"]["mean"], ja["joint_rmse_rad"]["mean"]])
     report.table(["run", "f [Hz]", f"final [m] {b}", f"final [m] {a}", f"mean [m] {b}", f"mean [m] {a}",
                   f"joint RMSE [rad] {b}", f"joint RMSE [rad] {a}"], rows)
-    report.figure(plots.plot_error_bars(table, out_dir / "held_out_head_error.png", "final head error [m]",
-                                        title=f"held-out final head error, {b} vs {a}"), "per-gait held-out error")
-    paths = [(f"{lab} {h.freq_hz:g} Hz", r) for h in held for lab, r in (("measured", h.measured), (b, h.before), (a, h.after))]
-    report.figure(plots.plot_head_paths(paths, out_dir / "held_out_head_paths.png", title="held-out head paths"),
-                  "head paths: measured, before and after")
+    report.figure(plots.plot_error_bars(table, out_dir / "held_out_head_error.png", unit,
+                                        title=f"held-out {unit.split(' [')[0]}, {b} vs {a}"), "per-gait held-out error")
+    if not joint_only:
+        paths = [(f"{lab} {h.freq_hz:g} Hz", r) for h in held
+                 for lab, r in (("measured", h.measured), (b, h.before), (a, h.after))]
+        report.figure(plots.plot_head_paths(paths, out_dir / "held_out_head_paths.png", title="held-out head paths"),
+                      "head paths: measured, before and after")
     mid = held[len(held) // 2]
     report.figure(plots.plot_joint_responses([("measured", mid.measured), (b, mid.before), (a, mid.after)],
                                              out_dir / "joint_responses.png", title=f"joints 5 and 6, {mid.name}"),

@@ -58,6 +58,7 @@ class Signature:
     amplitude_ratio: float
     lag_s: float
     sideways_share: float
+    head_measured: bool = True
 
     def to_json(self) -> dict:
         return asdict(self)
@@ -66,8 +67,9 @@ class Signature:
         """One readable paragraph."""
         channel = "the head path" if self.head_share > 0.6 else "joint tracking" if self.head_share < 0.4 else \
             "both the head path and joint tracking"
-        return (f"disagreement mostly in {channel} (head final {self.head_final_m * 100:.1f} cm, mean "
-                f"{self.head_mean_m * 100:.1f} cm; joint RMSE {self.joint_rmse_rad:.4f} rad, worst joint "
+        head = (f"head final {self.head_final_m * 100:.1f} cm, mean {self.head_mean_m * 100:.1f} cm"
+                if self.head_measured else "head not measured: joint-only runs")
+        return (f"disagreement mostly in {channel} ({head}; joint RMSE {self.joint_rmse_rad:.4f} rad, worst joint "
                 f"{self.worst_joint}); joint residuals vs sign(qdot): r = {self.r_sign_signed:+.2f}, vs qdot: "
                 f"r = {self.r_vel_signed:+.2f}, vs effort: r = {self.r_effort:+.2f}; reversal ratio "
                 f"{self.reversal_ratio:.2f}; offset score {self.offset_score:.2f} ({self.offset_rad:+.4f} rad); "
@@ -84,7 +86,7 @@ def _corr(a: np.ndarray, b: np.ndarray) -> float:
 def localise(pairs: Sequence[tuple[Run, Run]], *, freq_hz: Sequence[float] | None = None) -> Signature:
     """Signature of the residuals of (measured, simulated) run pairs sampled on the same times."""
     E, S, V, P, L, phase, rev = [], [], [], [], [], [], []
-    finals, means, joint_sq, amp_m, amp_s = [], [], [], [], []
+    finals, means, seen, joint_sq, amp_m, amp_s = [], [], [], [], [], []
     slip_along, slip_side, lags = [], [], []
     for k, (m, s) in enumerate(pairs):
         t = m.t
@@ -107,6 +109,7 @@ def localise(pairs: Sequence[tuple[Run, Run]], *, freq_hz: Sequence[float] | Non
         rev.append(near)
         err = np.linalg.norm(m.head_pos[:, :2] - s.head_pos[:, :2], axis=1)
         ok = np.flatnonzero(np.isfinite(err))
+        seen.append(ok.size > 0)
         finals.append(float(err[ok[-1]]) if ok.size else 0.0)
         means.append(float(np.mean(err[ok])) if ok.size else 0.0)
         joint_sq.append(np.mean(e ** 2))
@@ -143,7 +146,7 @@ def localise(pairs: Sequence[tuple[Run, Run]], *, freq_hz: Sequence[float] | Non
     r_vel = _corr(E_.ravel(), V_.ravel())
     return Signature(
         head_final_m=float(np.mean(finals)), head_mean_m=float(np.mean(means)), joint_rmse_rad=joint_rmse,
-        head_share=head_n / (head_n + joint_n) if head_n + joint_n > 0 else 0.5,
+        head_share=head_n / (head_n + joint_n) if head_n + joint_n > 0 else 0.5, head_measured=any(seen),
         joint_rms_rad=[float(v) for v in np.sqrt(np.mean(E_ ** 2, axis=0))],
         worst_joint=int(np.argmax(np.mean(E_ ** 2, axis=0))) + 1,
         phase_rms_rad=phase_rms, peak_phase_bin=int(np.argmax(phase_rms)),

@@ -10,7 +10,7 @@ import pytest
 from cobra_cli.main import main
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
-from cobra_model.runs import write_run
+from cobra_model.runs import Run, write_run
 from integrators.runs import simulate_gait
 from sysid.effects import EffectLibrary
 from sysid.runsets import expand
@@ -95,3 +95,33 @@ def test_run_paths_resolve_as_read_run_resolves_them(tmp_path):
         assert expand([str(tmp_path / name)]) == ([tmp_path / name], [])
     with pytest.raises(InputError, match="other"):
         expand([str(tmp_path / "other")])
+
+
+@pytest.fixture(scope="module")
+def joint_only(tmp_path_factory) -> tuple[list[Path], Path]:
+    """Runs recorded without motion capture (every head_* cell empty, no body tracks) of a
+    robot whose motor constant is 10 % below the datasheet's."""
+    d = tmp_path_factory.mktemp("joint_only")
+    truth = ModelParameters.nominal().with_values(motor_km=0.9 * ModelParameters.nominal().motor_km)
+    paths = []
+    for i, f in enumerate((0.5, 0.65, 0.5)):
+        run = simulate_gait(SidewindingGait(f, ramp_s=0.5), 3.0, params=truth, heading_rad=float(i), sample_rate_hz=50)
+        blank = Run(t=run.t, q_ref=run.q_ref, q=run.q, head_pos=np.full_like(run.head_pos, np.nan),
+                    head_quat=np.full_like(run.head_quat, np.nan), dq=run.dq, current=run.current, meta=run.meta)
+        paths.append(write_run(blank, d / f"joints{i}.csv"))
+    return paths[:2], paths[2]
+
+
+@pytest.mark.slow
+def test_fit_on_joint_only_runs_fits_the_joints_and_says_the_head_is_left_out(joint_only, tmp_path, capsys):
+    train, hold = joint_only
+    out = tmp_path / "fit.json"
+    args = ["fit", *map(str, train), "--holdout", str(hold), "--free", "motor_km", "--max-iterations", "6",
+            "--out", str(out)]
+    assert main(args) == 0
+    printed = capsys.readouterr().out
+    assert "joint-only runs (no head pose in any sample" in printed
+    assert "head metrics omitted" in printed
+    # the joints alone pin the motor constant: 10 % low, recovered to 1 %
+    fitted = ModelParameters.load(out).value("motor_km")
+    assert fitted == pytest.approx(0.9 * ModelParameters.nominal().motor_km, rel=0.01)

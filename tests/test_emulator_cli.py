@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import argparse
+import json
 import signal
 import subprocess
 import sys
@@ -11,7 +12,7 @@ from typing import Iterator
 
 import pytest
 
-from cobra_cli import cmd_emulate, cmd_record
+from cobra_cli import cmd_compare, cmd_emulate, cmd_record
 from cobra_model.runs import read_run
 
 REPO = Path(__file__).resolve().parent.parent
@@ -93,6 +94,18 @@ def test_record_on_the_emulator(tmp_path: Path, emulate, capsys) -> None:
     assert "torque off on all 11 servos" in capsys.readouterr().out
     run = read_run(out)
     assert run.meta["source"] == "emulator" and run.n_samples > 40
+    # a fresh recording has no motion capture: `cobra compare` gives the joint metrics only
+    plots = tmp_path / "plots"
+    args = parse(cmd_compare, ["compare", str(out), "--json", "--plots", str(plots)])
+    assert args.func(args) == 0
+    captured = capsys.readouterr()
+    report = json.loads(captured.out)
+    assert report["head_omitted"].startswith("no sample has a head pose in both runs (a joint-only run")
+    assert report["head_final_error_m"] is None
+    # the ideal emulated servos lag by 30 ms, the simulated ones more: a few centiradians apart
+    assert 0.001 < report["joint_rmse_rad"]["mean"] < 0.1
+    assert "no head figures" in captured.err
+    assert sorted(p.name for p in plots.iterdir()) == ["joints_5_6.png", "replay.html", "window_correlation.png"]
 
 
 def test_record_stops_on_an_emulated_overload_then_refuses_to_connect(tmp_path: Path, emulate, capsys) -> None:

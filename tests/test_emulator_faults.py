@@ -29,6 +29,9 @@ from hardware.emulator import EmulatorProcess
 from hardware.faults import Fault, FaultKind, parse_fault
 from hardware.plant import KinematicPlant
 from hardware.recorder import RecordResult, StopReason, record_gait
+from hardware.runwriter import UNFINISHED_NOTE
+from integrators.runs import simulate_like
+from sysid.metrics import compare_runs
 
 GAIT = SidewindingGait(freq_hz=0.5, ramp_s=0.5)
 
@@ -65,6 +68,14 @@ def assert_holds_every_sample(run, emu: EmulatorProcess, *, lost_in_flight: int 
     assert received - lost_in_flight <= run.n_samples <= received
     sent = emu.stats().intact_sync_reads.get(ct.PRESENT_STATE_ADDRESS, 0) - 1
     assert sent - comm["reads_failed"] - lost_in_flight <= run.n_samples <= sent
+    assert_comparable(run)
+
+
+def assert_comparable(run) -> None:
+    """`cobra compare` reproduces the (partial) run: a recording without motion capture gives
+    the joint metrics only."""
+    report = compare_runs(run, simulate_like(run))
+    assert report.head_omitted and np.isfinite(report.joint_rmse).all()
 
 
 def torque(emu: EmulatorProcess) -> list[int]:
@@ -357,3 +368,22 @@ def test_brownout_stops_with_torque_off(tmp_path: Path, emulators) -> None:
     run = read_run(result.path)
     assert_holds_every_sample(run, emu)
     assert 0.3 <= run.t[-1] < 1.0
+
+
+def test_a_full_disk_stops_with_torque_off_and_keeps_what_was_written(tmp_path: Path, emulators,
+                                                                      full_disk_after) -> None:
+    emulators.append(emu := start())
+    full_disk_after(20)  # the disk fills while the 21st sample is written
+    result = record(emu, tmp_path / "full.csv", duration_s=3.0)
+    assert result.status is StopReason.WRITE_FAILED
+    assert result.message.startswith(f"cannot write sample 21 to {tmp_path / 'full.csv'}: the disk is full")
+    assert "the file keeps the 20 samples before it; torque off on all 11 servos" in result.message
+    assert result.message.endswith("could not be updated (No space left on device): it still says the "
+                                   "recording did not finish")
+    assert torque(emu) == [0] * 11
+    run = read_run(result.path)
+    assert run.n_samples == 20 == result.samples
+    assert run.meta["notes"] == [UNFINISHED_NOTE]
+    assert_comparable(run)
+    # the 21st sample was received but could not be written; nothing after it was read
+    assert emu.stats().intact_sync_reads[ct.PRESENT_STATE_ADDRESS] - 1 == 21

@@ -12,7 +12,7 @@ import pytest
 
 from cobra_model.errors import InputError
 from cobra_model.runs import Run, read_run, write_run
-from hardware.runwriter import UNFINISHED_NOTE, IncrementalRunWriter
+from hardware.runwriter import UNFINISHED_NOTE, IncrementalRunWriter, RunWriteError
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -88,3 +88,20 @@ def test_samples_survive_a_killed_process(tmp_path: Path) -> None:
     assert run.n_samples == 40
     np.testing.assert_array_equal(run.q[:, 0], np.arange(40))
     assert json.loads((tmp_path / "killed.json").read_text())["notes"] == [UNFINISHED_NOTE]
+
+
+
+def test_a_full_disk_keeps_every_complete_sample_and_the_old_sidecar(tmp_path: Path, full_disk_after) -> None:
+    full_disk_after(3)
+    writer = IncrementalRunWriter(tmp_path / "full.csv", {"source": "test"})
+    zeros = np.zeros(11)
+    for k in range(3):
+        writer.append(0.02 * k, zeros, zeros, zeros, zeros)
+    with pytest.raises(RunWriteError, match=r"cannot write sample 4 to .*full\.csv: the disk is full "
+                                            r"\(No space left on device\); the file keeps the 3 samples before it"):
+        writer.append(0.06, zeros, zeros, zeros, zeros)  # 7 bytes of it land, then the disk is full
+    writer.close(notes=["partial run: disk full"])
+    assert not writer.sidecar_updated and "could not be updated (No space left on device)" in writer.sidecar_error
+    run = read_run(tmp_path / "full.csv")  # no half line: still a valid run
+    assert run.n_samples == 3 == writer.rows
+    assert run.meta["notes"] == [UNFINISHED_NOTE]

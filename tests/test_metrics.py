@@ -310,9 +310,10 @@ def test_report_json_keys_and_table() -> None:
     report = compare_runs(measured, simulated, window_s=1.0)
     out = report.to_json_dict()
     assert list(out) == [
-        "head_final_error_m", "head_mean_error_m", "joint_rmse_rad", "cpg_error",
+        "head_omitted", "head_final_error_m", "head_mean_error_m", "joint_rmse_rad", "cpg_error",
         "window_correlation", "body_final_error_m", "resampled",
     ]
+    assert out["head_omitted"] is None
     assert out["head_final_error_m"] == pytest.approx(0.1)
     assert len(out["joint_rmse_rad"]["per_joint"]) == NUM_JOINTS
     assert out["joint_rmse_rad"]["mean"] == pytest.approx(np.mean(report.joint_rmse))

@@ -115,6 +115,14 @@ def test_a_run_without_any_head_pose_is_refused(measured: Run) -> None:
         make_tracks(measured, [("blind", blind)])
 
 
+def test_a_joint_only_measured_run_is_drawn_on_the_first_ghosts_head_pose(measured: Run) -> None:
+    blind = dataclasses.replace(measured, head_pos=np.full_like(measured.head_pos, np.nan),
+                                head_quat=np.full_like(measured.head_quat, np.nan), bodies={})
+    solid, ghost = make_tracks(blind, [("sim", measured)])
+    np.testing.assert_allclose(solid.head_pos, ghost.head_pos)
+    np.testing.assert_allclose(solid.run.q, measured.q)  # its own joints
+
+
 def test_tracks_get_distinct_colours_and_unique_node_names(measured: Run) -> None:
     tracks = make_tracks(measured, [("a b", measured), ("a_b", measured), ("x/y", measured)])
     assert [tr.node for tr in tracks] == ["measured", "a_b", "a_b_2", "x_y"]

@@ -128,7 +128,9 @@ def make_tracks(measured: Run, others: Sequence[tuple[str, Run]], *,
     """The measured run (solid, :data:`MEASURED_COLOUR`) then the others as ghosts.
 
     Args:
-        measured: the reference run, drawn solid from its joint angles and mocap head pose.
+        measured: the reference run, drawn solid from its joint angles and mocap head pose; a
+            joint-only run (no head pose in any sample, recorded without motion capture) is
+            drawn on the first other run's head pose, so that its joints can be compared.
         others: ``(name, run)`` of the runs to compare, e.g. simulated reproductions; each gets
             the next colour of :data:`GHOST_COLOURS`.
         measured_name: legend text of the measured run (default ``measured (<file stem>)``).
@@ -145,6 +147,10 @@ def make_tracks(measured: Run, others: Sequence[tuple[str, Run]], *,
                 for i, (name, run) in enumerate(others)]
     for name, run, colour, ghost in entries:
         pose = hold_last_valid(np.column_stack([run.head_pos, run.head_quat]))
+        if pose is None and not ghost and others:
+            lead = others[0][1]
+            pose = hold_last_valid(np.column_stack([np.interp(run.t, lead.t, col)
+                                                    for col in np.column_stack([lead.head_pos, lead.head_quat]).T]))
         if pose is None:
             raise InputError(f"{run.source or name}: no sample has a head pose (head_* all empty); "
                              "cannot place the robot")
