@@ -10,6 +10,7 @@ import numpy as np
 from cobra_cli.common import check_writable
 from cobra_model.errors import InputError
 from cobra_model.runs import write_run
+from sysid.clock_alignment import estimate_clock_offset
 from sysid.optitrack import (
     TARGET_NAMES,
     merge_take_and_joints,
@@ -33,8 +34,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--map", action="append", default=[], metavar="NAME=BODY[,NAME=BODY...]",
                    help="map Motive rigid body NAME to BODY (head, link_2..link_11, tail); "
                         "comma-separated, repeatable")
-    p.add_argument("--time-offset", type=float, default=0.0, metavar="S",
-                   help="take time minus joint-log time of one instant [s] (default 0)")
+    p.add_argument("--time-offset", type=float, default=None, metavar="S",
+                   help="take time minus joint-log time of one instant [s] (default: estimated from the "
+                        "data, by matching the tracked bodies' positions in the head's frame with the "
+                        "joint angles' kinematics; needs a body besides the head)")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.set_defaults(func=run)
 
@@ -84,7 +87,7 @@ def output_path(out: str | Path, force: bool) -> Path:
 def run(args: argparse.Namespace) -> int:
     """Merge the take and the joint log and write the run; print what was merged."""
     mapping = parse_map(args.map)
-    if not np.isfinite(args.time_offset):
+    if args.time_offset is not None and not np.isfinite(args.time_offset):
         raise InputError(f"--time-offset must be a finite number of seconds, got {args.time_offset}")
     out = output_path(args.out, args.force)
     take = read_motive_csv(args.take)
@@ -93,7 +96,15 @@ def run(args: argparse.Namespace) -> int:
         resolved = resolve_mapping(take, mapping)
     except InputError as exc:
         raise InputError(f"{exc} (set the mapping with --map NAME=BODY,...)") from None
-    result = merge_take_and_joints(take, joints, mapping=resolved, time_offset=args.time_offset)
+    estimate = None
+    offset = args.time_offset
+    if offset is None:
+        estimate = estimate_clock_offset(take, joints, mapping=resolved, joint_log=str(args.joints))
+        offset = estimate.offset_s
+    result = merge_take_and_joints(take, joints, mapping=resolved, time_offset=offset)
+    if estimate is not None:
+        result.meta["notes"].append(estimate.describe())
+        result.meta["optitrack"]["time_offset_estimate"] = estimate.to_json()
     write_run(result, out, force=args.force)
     tracked = np.isfinite(result.head_pos).all(axis=1).mean()
     bodies = ", ".join(f"{name} -> {body}" for name, body in resolved.items())

@@ -19,7 +19,10 @@ JOINT_SAMPLES = 25
 
 
 def import_argv(out: Path, *options: str) -> list[str]:
-    return ["import-optitrack", str(TAKE), "--joints", str(JOINTS), "--out", str(out), *options]
+    """The shipped small take (0.24 s, shorter than a gait cycle) with a given clock offset
+    (0 s unless ``options`` give one): too short for the offset to be estimated."""
+    offset = [] if "--time-offset" in options else ["--time-offset", "0"]
+    return ["import-optitrack", str(TAKE), "--joints", str(JOINTS), "--out", str(out), *offset, *options]
 
 
 def assert_one_line_error(err: str, *needles: str) -> None:
@@ -104,6 +107,15 @@ def test_bad_time_offset(options: list[str], needle: str, tmp_path: Path,
                          capsys: pytest.CaptureFixture[str]) -> None:
     assert main(import_argv(tmp_path / "run.csv", *options)) == 2
     assert_one_line_error(capsys.readouterr().err, needle)
+
+
+def test_without_an_offset_a_take_too_short_to_match_is_an_error_naming_both(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "run.csv"
+    assert main(["import-optitrack", str(TAKE), "--joints", str(JOINTS), "--out", str(out)]) == 2
+    assert_one_line_error(capsys.readouterr().err, f"{TAKE} spans [0, 0.241667] s and {JOINTS} spans [0, 0.24] s",
+                          "no shift leaves one gait cycle")
+    assert not out.exists()
 
 
 def test_bad_files_are_one_line_errors(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
