@@ -39,6 +39,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, help="fitted parameter file (JSON)")
     p.add_argument("--report", metavar="DIR", help="write report.html with figures into DIR")
     p.add_argument("--force", action="store_true", help="overwrite --out and report files")
+    p.add_argument("--current", action="store_true",
+                   help="least squares: also fit the measured motor currents (current_* columns in every run); "
+                        "the table then shows each interval without them too")
     p.add_argument("--no-check", action="store_true", help="skip the data check before fitting (gaps, "
                    "dropouts, saturated joints, parameters the runs cannot pin down, which it freezes)")
     p.set_defaults(func=run)
@@ -83,7 +86,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.no_check:
         params, check = check_before_fit(train, params, held_out=validation)
     executor = make_executor(args.executor, workers=args.workers, ray_address=args.ray_address)
-    objective = Objective(train, params, Weights(), executor=executor)
+    if args.current and args.method != "lsq":
+        raise InputError("--current: only least squares fits the motor current (--method lsq)")
+    objective = Objective(train, params, Weights(use_current=args.current), executor=executor)
     print(f"fitting {', '.join(params.free_names)} on {len(train)} runs ({len(validation)} held out) "
           f"by {args.method}")
     from tqdm import tqdm
@@ -120,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
                   "identifiable": {r.name: r.reason for r in result.report},
                   "intervals_iid": {r.name: [r.ci_low_iid, r.ci_high_iid] for r in result.report},
                   "interval_method": result.interval_method,
+                  "intervals_without_current": ({r.name: [r.ci_low, r.ci_high] for r in result.report_without_current}
+                                                if result.report_without_current else None),
                   "residual_whiteness": (result.residual_whiteness.to_json_dict()
                                          if result.residual_whiteness is not None else None),
                   "log": [dataclasses.asdict(entry) for entry in result.log],
@@ -128,9 +135,15 @@ def run(args: argparse.Namespace) -> int:
     print(f"{result.status.value} after {result.evaluations} evaluations in {result.seconds:.1f} s; "
           f"cost {result.initial_cost:.4g} -> {result.cost:.4g}")
     print(f"  {'parameter':16s} {'nominal':>10s} {'start':>10s} {'fitted':>10s} {'95% interval':>25s}  note")
+    without = {r.name: r for r in result.report_without_current or []}
     for r in result.report:
         ci = f"[{r.ci_low:.4g}, {r.ci_high:.4g}]"
-        print(f"  {r.name:16s} {r.nominal:10.4g} {r.initial:10.4g} {r.value:10.4g} {ci:>25s}  {r.reason}")
+        note = r.reason
+        if r.name in without:
+            wo = without[r.name]
+            note += (f"; without the current [{wo.ci_low:.4g}, {wo.ci_high:.4g}] "
+                     f"({(wo.ci_high - wo.ci_low) / (r.ci_high - r.ci_low):.2f} x as wide)")
+        print(f"  {r.name:16s} {r.nominal:10.4g} {r.initial:10.4g} {r.value:10.4g} {ci:>25s}  {note}")
     if result.interval_method:
         print(f"  intervals: {result.interval_method}")
     if result.residual_whiteness is not None:
@@ -152,8 +165,12 @@ def run(args: argparse.Namespace) -> int:
             report_dir.mkdir(parents=True, exist_ok=True)
             page = HtmlReport(f"cobra fit ({result.method}): {result.status.value}")
             page.heading("Parameters")
-            page.table(["name", "unit", "nominal", "start", "fitted", "95% low", "95% high", "at bound", "note"],
+            nan = float("nan")
+            extra = ["95% low without current", "95% high without current"] if without else []
+            page.table(["name", "unit", "nominal", "start", "fitted", "95% low", "95% high", *extra, "at bound", "note"],
                        [[r.name, r.unit, r.nominal, r.initial, r.value, r.ci_low, r.ci_high,
+                         *([without[r.name].ci_low, without[r.name].ci_high] if r.name in without else
+                           [nan, nan] if without else []),
                          "yes" if r.at_bound else "", r.reason] for r in result.report])
             page.paragraph(f"{result.evaluations} objective evaluations, {result.seconds:.1f} s, cost "
                            f"{result.initial_cost:.4g} -> {result.cost:.4g}.")

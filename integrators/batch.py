@@ -61,7 +61,7 @@ class BatchSimulator:
 
     def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float, *,
                 record_every: int = 0, goal_index: np.ndarray | None = None
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Step every environment for ``duration`` [s] with servo goals per control tick.
 
         Args:
@@ -74,9 +74,10 @@ class BatchSimulator:
                 steps (0: record only the final state).
 
         Returns:
-            (Q, V, Q_rec, M_rec): final (N, nq) configurations and (N, nv) velocities, and the
-            recorded (n_rec, N, nq) configurations and (n_rec, N, n_joints) encoder readings
-            [rad], the first record being the initial state.
+            (Q, V, Q_rec, M_rec, C_rec): final (N, nq) configurations and (N, nv) velocities, and
+            the recorded (n_rec, N, nq) configurations, (n_rec, N, n_joints) encoder readings
+            [rad] and (n_rec, N, n_joints) motor currents [A] (during the step before each record,
+            zero at the initial state), the first record being the initial state.
 
         Raises:
             InputError: shape mismatch. RuntimeError: an environment diverged (names which).
@@ -115,11 +116,13 @@ class BatchSimulator:
         nj, nq = self.model.n_joints, self.model.nq
         Q_rec = np.empty((n_rec, n, nq))
         M_rec = np.empty((n_rec, n, nj))
+        C_rec = np.empty((n_rec, n, nj))
         offset = act[:, :, K.A_ENC_OFFSET]
         for i in range(n_steps + 1):
             if i % every == 0:
                 Q_rec[i // every] = Q
                 M_rec[i // every] = Q[:, nq - nj:] + offset
+                C_rec[i // every] = cur
             if i == n_steps:
                 break
             g = goals[min(i // sub, len(goals) - 1)]
@@ -135,4 +138,4 @@ class BatchSimulator:
                                    f"{status[back][bad].tolist()})")
             Q, Qn = Qn, Q
             V, Vn = Vn, V
-        return Q[back], V[back], Q_rec[:, back], M_rec[:, back]
+        return Q[back], V[back], Q_rec[:, back], M_rec[:, back], C_rec[:, back]

@@ -136,6 +136,9 @@ class FitResult:
     residual_whiteness: Whiteness | None = None
     #: How the intervals were computed, one line for reports ("" when they were not).
     interval_method: str = ""
+    #: With the motor current fitted (``Weights.use_current``): the same fit's intervals from
+    #: its head and joint residuals alone, to show what the current adds (None otherwise).
+    report_without_current: list[ParameterReport] | None = None
 
 
 @contextmanager
@@ -271,12 +274,22 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     log.extend(lm.log)
     fitted = params0.from_unit(z)
     blocks = objective.residual_blocks()
-    found = uncertainty(params0, fitted, lm.J, lm.r, z, objective.start_pose_sensitivity(lm.r), blocks,
-                        sample_hz=objective.weights.sample_hz)
+    start_pose = objective.start_pose_sensitivity(lm.r)
+    found = uncertainty(params0, fitted, lm.J, lm.r, z, start_pose, blocks, sample_hz=objective.weights.sample_hz)
+    without_current = None
+    if objective.weights.use_current:
+        keep = ~objective.current_rows()
+        index = np.cumsum(keep) - 1  # a kept residual's row once the current rows are dropped
+        n_motion = 2 + objective.spec.targets[0].q.shape[1]  # head x, y and the joints
+        without_current = uncertainty(params0, fitted, lm.J[keep], lm.r[keep], z,
+                                      (start_pose[0][keep], start_pose[1]),
+                                      [index[b[:, :n_motion]] for b in blocks],
+                                      sample_hz=objective.weights.sample_hz).report
     white = whiteness(lm.r, blocks, missing=objective.head_gaps())
     return FitResult(fitted, lm.status, lm.cost, 0.5 * float(r0 @ r0), log, found.report, found.singular_values,
                      objective.evaluations, time.perf_counter() - t_start, residual_count=lm.r.size,
-                     residual_whiteness=white, interval_method=found.method)
+                     residual_whiteness=white, interval_method=found.method,
+                     report_without_current=without_current)
 
 
 @dataclass

@@ -49,6 +49,13 @@ class Weights:
         mean_head: weight of the mean head error [1/m] (0: the paper's final-only reward).
         joint_rmse: weight of the mean joint RMSE [1/rad].
         cpg: weight of the mean squared CPG amplitude + phase error [1/rad^2] (Eq. 8).
+        use_current: also fit the measured motor currents (``current_*`` columns, needed in
+            every run), which pin the motor constant and the internal damping directly.
+        current_scale_a: ... and (with ``use_current``) this much motor current [A]. The joint
+            scale is 23 times the encoders' quantisation noise (0.44 mrad rms); the current scale
+            is the same multiple of a Present Current reading's noise (about 20 mA), so that
+            neither channel is weighted beyond what its noise allows (at 0.05 A the current's
+            noise made the motor constant's interval twice as wide as without it).
     """
 
     head_scale_m: float = 0.01
@@ -58,6 +65,8 @@ class Weights:
     mean_head: float = 0.0
     joint_rmse: float = 1.0
     cpg: float = 1.0
+    use_current: bool = False
+    current_scale_a: float = 0.45
 
 
 @dataclass(frozen=True)
@@ -74,6 +83,7 @@ class RunTarget:
     head_xy: np.ndarray      # (S, 2) measured head, NaN in gaps
     q: np.ndarray            # (S, 11) measured joints [rad]
     freq_hz: float
+    current: np.ndarray | None = None  # (S, 11) measured motor currents [A] (NaN where missing), if any
 
     @classmethod
     def of_run(cls, run: Run, settings: SimSettings, sample_hz: float, model: CobraModel) -> "RunTarget":
@@ -85,8 +95,14 @@ class RunTarget:
         gait = run.meta.get("gait") if isinstance(run.meta, dict) else None
         freq = float(gait["frequency_hz"]) if isinstance(gait, dict) and "frequency_hz" in gait else _dominant_freq(run)
         start = StartObservation.of_run(run)
+        current = None if run.current is None else interpolate_rows(t0 + ts, run.t, run.current, max_gap_samples=2)
         return cls(str(run.source or "run"), t0, t1 - t0, start, start.pose(model, start.q_reading), ticks, ts, head,
-                   q, freq)
+                   q, freq, current)
+
+    def residual_size(self, weights: "Weights") -> int:
+        """Length of this run's part of the residual vector (:func:`residual_vector`)."""
+        S, n_j = len(self.t_samples), self.q.shape[1]
+        return S * (2 + n_j + (n_j if weights.use_current else 0))
 
 
 def _dominant_freq(run: Run) -> float:
@@ -112,6 +128,7 @@ class Simulated:
 
     head_xy: list[np.ndarray]   # per run (S, 2)
     q: list[np.ndarray]         # per run (S, 11)
+    current: list[np.ndarray]   # per run (S, 11) motor currents [A]
 
 
 @dataclass(frozen=True)
@@ -150,27 +167,33 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
         start = targets[e % n_runs].start
         pose = start.pose(model, sim.joints_reading(start.q_reading))
         states.append(sim.rest_state(pose.q_joints, head_xy=pose.head_xy, base_quat_wxyz=pose.head_quat_wxyz))
-    _, _, q_rec, m_rec = batch.rollout(states, goals, duration, record_every=every, goal_index=goal_index)
+    _, _, q_rec, m_rec, c_rec = batch.rollout(states, goals, duration, record_every=every, goal_index=goal_index)
     t_rec = np.arange(q_rec.shape[0]) * every * spec.settings.dt
     out = []
     for k in range(len(sets)):
-        heads, joints = [], []
+        heads, joints, currents = [], [], []
         for r, tg in enumerate(targets):
             e = k * n_runs + r
             heads.append(interpolate_rows(tg.t_samples, t_rec, q_rec[:, e, :2]))
             joints.append(interpolate_rows(tg.t_samples, t_rec, m_rec[:, e]))
-        out.append(Simulated(heads, joints))
+            currents.append(interpolate_rows(tg.t_samples, t_rec, c_rec[:, e]))
+        out.append(Simulated(heads, joints, currents))
     return out
 
 
 def residual_vector(spec: ObjectiveSpec, sim: Simulated) -> np.ndarray:
-    """Stacked weighted residuals (head xy over time, joints over time) of one parameter vector."""
+    """Stacked weighted residuals (head xy over time, joints over time, and with
+    ``Weights.use_current`` the motor currents over time) of one parameter vector; missing
+    measurements (motion-capture gaps, current samples) are zero residuals."""
     w = spec.weights
     parts = []
-    for tg, head, q in zip(spec.targets, sim.head_xy, sim.q):
+    for tg, head, q, current in zip(spec.targets, sim.head_xy, sim.q, sim.current):
         dh = (head - tg.head_xy) / w.head_scale_m
         parts.append(np.where(np.isfinite(dh), dh, 0.0).ravel())
         parts.append(((q - tg.q) / w.joint_scale_rad).ravel())
+        if w.use_current:
+            dc = (current - tg.current) / w.current_scale_a
+            parts.append(np.where(np.isfinite(dc), dc, 0.0).ravel())
     return np.concatenate(parts)
 
 
@@ -178,9 +201,10 @@ def residual_blocks(spec: ObjectiveSpec) -> list[np.ndarray]:
     """Where each run's samples sit in the residual vector of :func:`residual_vector`.
 
     Returns:
-        per run, an ``(S, 13)`` integer array: row ``t`` is sample time ``t_samples[t]``,
-        columns are the channels head x, head y, then joints 1 to 11; entries index the
-        stacked residual vector (the time series of one channel is a column).
+        per run, an ``(S, 13)`` integer array (``(S, 24)`` with ``Weights.use_current``): row
+        ``t`` is sample time ``t_samples[t]``, columns are the channels head x, head y, joints
+        1 to 11 (then the currents of joints 1 to 11); entries index the stacked residual
+        vector (the time series of one channel is a column).
     """
     out = []
     k = 0
@@ -188,9 +212,24 @@ def residual_blocks(spec: ObjectiveSpec) -> list[np.ndarray]:
         S, n_j = len(tg.t_samples), tg.q.shape[1]
         head = k + 2 * np.arange(S)[:, None] + np.arange(2)[None, :]
         joints = k + 2 * S + n_j * np.arange(S)[:, None] + np.arange(n_j)[None, :]
-        out.append(np.hstack([head, joints]))
-        k += 2 * S + tg.q.size
+        channels = [head, joints]
+        if spec.weights.use_current:
+            channels.append(joints + n_j * S)
+        out.append(np.hstack(channels))
+        k += tg.residual_size(spec.weights)
     return out
+
+
+def current_rows(spec: ObjectiveSpec) -> np.ndarray:
+    """``(m,)`` booleans: the residuals that are motor currents (none without ``use_current``)."""
+    parts = []
+    for tg in spec.targets:
+        n = tg.residual_size(spec.weights)
+        part = np.zeros(n, dtype=bool)
+        if spec.weights.use_current:
+            part[2 * len(tg.t_samples) + tg.q.size:] = True
+        parts.append(part)
+    return np.concatenate(parts)
 
 
 def head_gaps(spec: ObjectiveSpec) -> np.ndarray:
@@ -198,7 +237,7 @@ def head_gaps(spec: ObjectiveSpec) -> np.ndarray:
     parts = []
     for tg in spec.targets:
         parts.append(np.repeat(~np.isfinite(tg.head_xy).all(axis=1), 2))
-        parts.append(np.zeros(tg.q.size, dtype=bool))
+        parts.append(np.zeros(tg.residual_size(spec.weights) - 2 * len(tg.t_samples), dtype=bool))
     return np.concatenate(parts)
 
 
@@ -231,7 +270,7 @@ def start_pose_sensitivity(spec: ObjectiveSpec, r: np.ndarray) -> tuple[np.ndarr
         J[rows, 3 * i + 2] = -rel[seen, 1] / scale
         J[rows + 1, 3 * i + 2] = rel[seen, 0] / scale
         std[3 * i:3 * i + 3] = (tg.pose.xy_std_m, tg.pose.xy_std_m, tg.pose.yaw_std_rad)
-        k += 2 * S + tg.q.size
+        k += tg.residual_size(spec.weights)
     return J, std
 
 
@@ -291,6 +330,11 @@ class Objective:
             raise InputError("the objective needs at least one run")
         if not self.params.free_names:
             raise InputError("every parameter is frozen: nothing to fit")
+        if self.weights.use_current:
+            missing = [str(r.source or f"run {i}") for i, r in enumerate(self.runs) if r.current is None]
+            if missing:
+                raise InputError(f"fitting the motor current needs current_1..current_11 columns in every run; "
+                                 f"none in {', '.join(missing)}")
         model = CobraModel.load()
         self.spec = ObjectiveSpec(tuple(RunTarget.of_run(r, self.settings, self.weights.sample_hz, model)
                                         for r in self.runs),
@@ -320,7 +364,7 @@ class Objective:
     def run_costs(self, x: np.ndarray) -> np.ndarray:
         """Sum of squared residuals of each run (in the order of ``runs``) for one parameter vector."""
         r = self.residuals(np.atleast_2d(x))[0]
-        sizes = [2 * len(tg.t_samples) + tg.q.size for tg in self.spec.targets]
+        sizes = [tg.residual_size(self.weights) for tg in self.spec.targets]
         return np.array([float(part @ part) for part in np.split(r, np.cumsum(sizes)[:-1])])
 
     def start_pose_sensitivity(self, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -332,6 +376,10 @@ class Objective:
         """Per run, ``(S, 13)`` indices of its residuals by sample time and channel
         (:func:`residual_blocks`)."""
         return residual_blocks(self.spec)
+
+    def current_rows(self) -> np.ndarray:
+        """See :func:`current_rows`."""
+        return current_rows(self.spec)
 
     def head_gaps(self) -> np.ndarray:
         """Residuals that are motion-capture gaps (:func:`head_gaps`)."""

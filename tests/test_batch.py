@@ -17,7 +17,7 @@ def test_batch_matches_single_rollouts(cobra):
     gait = SidewindingGait(0.5)
     table = gait.q_ref(np.arange(1001) * 1e-3)
     states = [s.rest_state(heading_rad=h) for s, h in zip(batch.sims, (0.0, 1.0, 2.0))]
-    Q, V, _, _ = batch.rollout(states, np.repeat(table[:, None, :], 3, axis=1), 1.0)
+    Q, V, _, _, _ = batch.rollout(states, np.repeat(table[:, None, :], 3, axis=1), 1.0)
     for e, (sim, st) in enumerate(zip(batch.sims, states)):
         tr = sim.rollout(st, table, 1.0)
         assert np.allclose(Q[e], tr.q[-1], atol=1e-12)
@@ -36,7 +36,7 @@ def test_environments_of_other_rigid_body_models_step_together(cobra):
     assert len(batch._groups) == 3
     table = SidewindingGait(0.65).q_ref(np.arange(501) * 1e-3)
     states = [s.rest_state(heading_rad=0.5 * e) for e, s in enumerate(batch.sims)]
-    Q, V, Q_rec, M_rec = batch.rollout(states, np.repeat(table[:, None, :], len(params), axis=1), 0.5,
+    Q, V, Q_rec, M_rec, C_rec = batch.rollout(states, np.repeat(table[:, None, :], len(params), axis=1), 0.5,
                                        record_every=100)
     for e, (sim, st) in enumerate(zip(batch.sims, states)):
         tr = sim.rollout(st, table, 0.5, record_every=100)
@@ -44,6 +44,7 @@ def test_environments_of_other_rigid_body_models_step_together(cobra):
         assert np.allclose(V[e], tr.v[-1], atol=1e-10), e
         assert np.allclose(Q_rec[:, e], tr.q, atol=1e-12), e
         assert np.allclose(M_rec[:, e], tr.q_meas, atol=1e-12), e
+        assert np.allclose(C_rec[:, e], tr.current, atol=1e-9), e
     # the heavier transmission really is another model: its joints move otherwise
     assert not np.allclose(V[0, 6:], V[1, 6:], atol=1e-3)
 

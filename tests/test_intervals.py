@@ -1,6 +1,8 @@
 """HAC intervals and the residual whiteness test (sysid.intervals), and how a fit reports them."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,7 @@ from sysid.dataset import RunPlan, record
 from sysid.intervals import (Whiteness, bartlett_bandwidth, check_blocks, long_run_covariance, prewhiten,
                              sandwich_covariance, whiteness)
 from sysid.lsq import fit_lsq
-from sysid.objective import Objective, Simulated, residual_vector
+from sysid.objective import Objective, Simulated, Weights, current_rows, residual_blocks, residual_vector
 
 
 def ar1(rng: np.random.Generator, rho: float, shape: tuple[int, ...]) -> np.ndarray:
@@ -170,7 +172,7 @@ def test_residual_blocks_follow_the_residual_vector(short_objective):
     joint_marks = 1000 + np.arange(11 * S, dtype=float).reshape(S, 11)
     w = spec.weights
     sim = Simulated([np.where(np.isfinite(tg.head_xy), tg.head_xy, 0.0) + head_marks * w.head_scale_m],
-                    [tg.q + joint_marks * w.joint_scale_rad])
+                    [tg.q + joint_marks * w.joint_scale_rad], [np.zeros_like(tg.q)])
     r = residual_vector(spec, sim)
     (block,) = short_objective.residual_blocks()
     assert block.shape == (S, 13)
@@ -179,6 +181,22 @@ def test_residual_blocks_follow_the_residual_vector(short_objective):
     assert np.allclose(r[block[:, 2:]], joint_marks)
     gaps = short_objective.head_gaps()
     assert gaps.shape == r.shape and np.array_equal(gaps[block[:, 0]], ~seen) and not gaps[block[:, 2:]].any()
+
+
+def test_current_channels_follow_the_joints_in_the_residual_vector(short_objective):
+    """With the current fitted, each run's block has 11 more columns, after the joints."""
+    spec = dataclasses.replace(short_objective.spec, weights=Weights(use_current=True))
+    tg = dataclasses.replace(spec.targets[0], current=np.zeros_like(spec.targets[0].q))
+    spec = dataclasses.replace(spec, targets=(tg,))
+    S = len(tg.t_samples)
+    current_marks = 5000 + np.arange(11 * S, dtype=float).reshape(S, 11)
+    sim = Simulated([np.where(np.isfinite(tg.head_xy), tg.head_xy, 0.0)], [tg.q],
+                    [current_marks * spec.weights.current_scale_a])
+    r = residual_vector(spec, sim)
+    (block,) = residual_blocks(spec)
+    assert block.shape == (S, 24) and r.size == 24 * S
+    assert np.allclose(r[block[:, 13:]], current_marks) and np.allclose(r[block[:, 2:13]], 0.0)
+    assert current_rows(spec)[block[:, 13:]].all() and not current_rows(spec)[block[:, :13]].any()
 
 
 def test_fit_reports_whiteness_and_both_intervals(short_objective):
