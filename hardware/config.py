@@ -249,6 +249,16 @@ class _Section:
 _REQUIRED = object()
 
 
+def _model_number(servo: _Section) -> int:
+    """``[servo] model_number``: one of the X-series models this driver speaks to."""
+    value = servo.get_int("model_number", ct.XH540_W270_MODEL_NUMBER, 0, 0xFFFF)
+    if value not in ct.KNOWN_MODELS:
+        known = ", ".join(f"{n} ({name})" for n, name in ct.KNOWN_MODELS.items())
+        raise InputError(f"{servo.where}: model_number = {value} is no X-series servo with this control table; "
+                         f"expected one of {known}")
+    return value
+
+
 def bus_config_from_dict(data: Any, *, source: str) -> BusConfig:
     """Validate a parsed configuration (the structure of the file) into a :class:`BusConfig`.
 
@@ -297,7 +307,7 @@ def bus_config_from_dict(data: Any, *, source: str) -> BusConfig:
     servo = _Section(data.get("servo", {}), f"{source}: [servo]")
     mode_name = servo.get_choice("operating_mode", "position", OPERATING_MODE_NAMES)
     settings = ServoSettings(
-        model_number=servo.get_int("model_number", ct.XH540_W270_MODEL_NUMBER, 0, 0xFFFF),
+        model_number=_model_number(servo),
         operating_mode=OPERATING_MODE_NAMES[mode_name],
         position_p_gain=servo.get_int("position_p_gain", ct.POSITION_P_GAIN.default, *ct.POSITION_P_GAIN.valid),
         position_i_gain=servo.get_int("position_i_gain", ct.POSITION_I_GAIN.default, *ct.POSITION_I_GAIN.valid),

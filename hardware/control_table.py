@@ -18,6 +18,13 @@ from hardware.units import to_signed
 #: ``dynamixel_easy_sdk/control_table/dynamixel.model``) gives 1100 for the XH540-W270;
 #: 1120 is the XM540-W270.
 XH540_W270_MODEL_NUMBER = 1100
+#: Model numbers of the X-series servos whose control table is this one with Present Current
+#: (126) read as the driver reads it (XM, XH and XW series; ROBOTIS's model numbers).
+KNOWN_MODELS: dict[int, str] = {
+    1000: "XH430-W350", 1010: "XH430-W210", 1020: "XM430-W350", 1030: "XM430-W210", 1040: "XH430-V350",
+    1050: "XH430-V210", 1100: "XH540-W270", 1110: "XH540-W150", 1120: "XM540-W270", 1130: "XM540-W150",
+    1140: "XH540-V270", 1150: "XH540-V150", 1170: "XW540-T260", 1180: "XW540-T140",
+}
 #: First RAM address; lower addresses are EEPROM.
 EEPROM_END = 64
 #: Bytes of the table image (addresses 0..146).

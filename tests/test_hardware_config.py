@@ -77,6 +77,8 @@ _DELETE = object()
     (("bus", "bus_watchdog_ms"), 40, r"bus_watchdog_ms = 40: shorter than 3 control periods \(60 ms at 50 Hz\).*"
                                      r"expected at least 60"),
     (("servo", "position_p_gain"), 20000, r"\[servo\]: position_p_gain: expected an integer in 0\.\.16383"),
+    (("servo", "model_number"), 1060, r"\[servo\]: model_number = 1060 is no X-series servo with this control "
+                                       r"table; expected one of 1000 \(XH430-W350\), .*1100 \(XH540-W270\)"),
     (("servo", "pwm_limit"), 900, r"pwm_limit: expected an integer in 0\.\.885, got 900"),
     (("servo", "operating_mode"), "velocity", r"operating_mode: expected one of 'position'"),
     (("servo", "joint_limit_deg"), 120.0, r"joint_limit_deg: expected a number in \(0, 90\]"),
