@@ -1,43 +1,56 @@
-"""Simulation speed: this simulator vs MuJoCo on the same URDF and gait, plus batched rollouts.
+"""Simulation speed: every rollout path a user calls, against MuJoCo on the same URDF and gait.
 
-10 s of the 0.5 Hz sidewinding gait at dt = 1 ms. MuJoCo gets the same URDF with a free joint,
-cylinder-plane contacts (its soft-constraint contact model, the comparable one) and position
-servos linearised from the same Dynamixel loop; both read their commands from a precomputed
-table, so the Python loop costs are alike. The batched rollout steps N environments with
-different ground parameters (shared armature) through Pinocchio's ``abaInParallel``.
+10 s of the 0.5 Hz sidewinding gait at dt = 1 ms, best of ``REPEATS``. MuJoCo gets the same
+URDF with a free joint, the URDF's collision cylinders touching the ground only (no
+self-collision: our simulator has none), its default integrator, and position servos
+linearised from the same Dynamixel loop, reading a precomputed command table. Our paths:
 
-Run: ``.venv/bin/python benchmarks/sim_speed.py`` (prints a Markdown table).
+- the compiled core: ``Simulator.rollout`` with a command table, recording every 10th step;
+- ``Simulator.rollout`` with the gait's ``q_ref`` callable, recording every step (the README's
+  quick tour);
+- ``simulate_gait`` (what ``cobra simulate`` runs: a run sampled at 100 Hz with tracked bodies);
+- ``simulate_like`` of a 10 s run (what ``cobra compare`` runs);
+- the batched rollout of the objective (``BatchSimulator``), per environment-step.
+
+Writes ``benchmarks/results/sim_speed.{json,md}``.
+Run: ``.venv/bin/python benchmarks/sim_speed.py``.
 """
 from __future__ import annotations
 
+import sys
 import time
+from pathlib import Path
+from typing import Callable
 
 import mujoco
 import numpy as np
 
-from cobra_model import CobraModel, ModelParameters, SidewindingGait
-from integrators import Simulator, mujoco_twin
-from integrators.batch import BatchSimulator
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from benchmarks._results import write_results  # noqa: E402
+from cobra_model import CobraModel, ModelParameters, SidewindingGait  # noqa: E402
+from integrators import Simulator, mujoco_twin  # noqa: E402
+from integrators.batch import BatchSimulator  # noqa: E402
+from integrators.runs import simulate_gait, simulate_like  # noqa: E402
 
 DURATION = 10.0
 DT = 1e-3
 REPEATS = 3
 
 
-def time_ours(model: CobraModel, table: np.ndarray) -> float:
-    sim = Simulator(model)
-    st = sim.rest_state()
-    sim.rollout(st, table[:50], 0.05)     # compile
+def per_step(run: Callable[[], object]) -> float:
+    """Best of ``REPEATS`` of ``run`` (10 s of simulation) per 1 ms step [s]."""
+    run()  # compile, warm caches
     best = np.inf
     for _ in range(REPEATS):
         t0 = time.perf_counter()
-        sim.rollout(st, table, DURATION, record_every=10)
+        run()
         best = min(best, time.perf_counter() - t0)
     return best / (DURATION / DT)
 
 
-def time_mujoco(model: CobraModel, table: np.ndarray) -> float:
-    mj = mujoco_twin.build(model.urdf_path, mujoco_twin.TwinOptions(timestep=DT))
+def time_mujoco(model: CobraModel, table: np.ndarray, self_collision: bool = False) -> float:
+    mj = mujoco_twin.build(model.urdf_path, mujoco_twin.TwinOptions(timestep=DT, self_collision=self_collision))
     best = np.inf
     for _ in range(REPEATS):
         d = mujoco.MjData(mj)
@@ -65,22 +78,42 @@ def time_batch(model: CobraModel, table: np.ndarray, n_env: int, seconds: float 
 
 def main() -> None:
     model = CobraModel.load()
-    table = SidewindingGait(0.5).q_ref(np.arange(int(DURATION / DT) + 1) * DT)
-    ours = time_ours(model, table)
+    gait = SidewindingGait(0.5)
+    table = gait.q_ref(np.arange(int(DURATION / DT) + 1) * DT)
+    sim = Simulator(model)
+    st = sim.rest_state(gait.q_ref(0.0))
+    reference = simulate_gait(gait, DURATION, model=model)
     mj = time_mujoco(model, table)
-    rows = [("this simulator (Pinocchio ABA + numba kernels), 1 env", ours, DT / ours),
-            ("MuJoCo mj_step, same URDF and gait, 1 env", mj, DT / mj)]
-    print(f"# 10 s sidewinding at dt = {DT * 1e3:g} ms, best of {REPEATS}\n")
-    print("| simulator | us / step | real-time factor |")
-    print("|---|---:|---:|")
-    for name, per_step, rtf in rows:
-        print(f"| {name} | {per_step * 1e6:.1f} | {rtf:.0f}x |")
-    print(f"\nratio this / MuJoCo (time per step): **{ours / mj:.2f}** (target <= 0.6)\n")
-    print("| batched rollout (2 threads) | us / env-step |")
-    print("|---|---:|")
-    for n_env in (16, 64, 256):
-        print(f"| {n_env} environments | {time_batch(model, table, n_env) * 1e6:.2f} |")
-    print("\n(target <= 4 us per environment-step on 2 cores)")
+    mj_self = time_mujoco(model, table, self_collision=True)
+    paths = [
+        ("core: Simulator.rollout, command table, record every 10th step",
+         per_step(lambda: sim.rollout(st, table, DURATION, record_every=10)), 0.3),
+        ("Simulator.rollout, q_ref callable, record every step",
+         per_step(lambda: sim.rollout(st, gait.q_ref, DURATION)), 0.5),
+        ("simulate_gait (cobra simulate), 100 Hz run with tracked bodies",
+         per_step(lambda: simulate_gait(gait, DURATION, model=model)), 0.5),
+        ("simulate_like of a 10 s run (cobra compare)",
+         per_step(lambda: simulate_like(reference, model=model)), 0.5),
+    ]
+    rows = [{"path": name, "us_per_step": 1e6 * t, "ratio_to_mujoco": t / mj, "target_ratio": target}
+            for name, t, target in paths]
+    batch = [{"environments": n, "us_per_env_step": 1e6 * time_batch(model, table, n)} for n in (16, 64, 256)]
+    lines = [f"10 s of 0.5 Hz sidewinding at dt = {DT * 1e3:g} ms, best of {REPEATS}; MuJoCo: same URDF, "
+             "cylinders touching the ground only, default integrator, linearised servos, command table.", "",
+             "| path | us / step | ratio to MuJoCo | target ratio |", "|---|---:|---:|---:|"]
+    lines += [f"| {r['path']} | {r['us_per_step']:.1f} | {r['ratio_to_mujoco']:.2f} | <= {r['target_ratio']:g} |"
+              for r in rows]
+    lines += [f"| MuJoCo mj_step (ground contacts only) | {1e6 * mj:.1f} | 1 | |",
+              f"| MuJoCo mj_step with self-collision among the cylinders | {1e6 * mj_self:.1f} | "
+              f"{mj_self / mj:.2f} | |", "",
+              "| batched rollout (BatchSimulator, 2 threads) | us / env-step | target |", "|---|---:|---:|"]
+    lines += [f"| {b['environments']} environments | {b['us_per_env_step']:.2f} | "
+              f"{'<= 2' if b['environments'] == 256 else ''} |" for b in batch]
+    text = "\n".join(lines)
+    write_results("sim_speed", rows + batch, {"duration_s": DURATION, "dt_s": DT, "repeats": REPEATS,
+                                              "mujoco_us_per_step": 1e6 * mj,
+                                              "mujoco_self_collision_us_per_step": 1e6 * mj_self}, text)
+    print(text)
 
 
 if __name__ == "__main__":

@@ -15,6 +15,7 @@ robots with mesh collisions (e.g. Solo) name their contact frames explicitly.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 from pathlib import Path
 from typing import Sequence
 
@@ -235,7 +236,7 @@ class RobotModel:
         start = 2 if self.chain.floating else 1
         return tuple(self.pin_model.names[i] for i in range(start, self.pin_model.njoints))
 
-    @property
+    @cached_property
     def body_names(self) -> tuple[str, ...]:
         """Link names carried by each Pinocchio joint (the root link first for a floating model)."""
         names = []
@@ -414,6 +415,27 @@ class RobotModel:
         data = self._placements(q)
         return {name: data.oMi[i + 1].act(self.pin_model.inertias[i + 1].lever)
                 for i, name in enumerate(self.body_names)}
+
+    def body_tracks(self, Q: np.ndarray, names: Sequence[str]) -> dict[str, np.ndarray]:
+        """World positions [m], ``(N, 3)`` each, of the centres of the links ``names`` at every
+        configuration of ``Q`` (N, nq): :meth:`body_centres` of many configurations at once (one
+        kinematics pass each, only the links asked for).
+
+        Raises:
+            InputError: naming a link the model does not have.
+        """
+        index = {name: i + 1 for i, name in enumerate(self.body_names)}
+        unknown = [n for n in names if n not in index]
+        if unknown:
+            raise InputError(f"unknown link(s) {unknown}; the model has {', '.join(index)}")
+        data = self.pin_model.createData()
+        levers = {n: self.pin_model.inertias[index[n]].lever for n in names}
+        out = {n: np.empty((len(Q), 3)) for n in names}
+        for k, q in enumerate(np.asarray(Q, dtype=float)):
+            pin.forwardKinematics(self.pin_model, data, q)
+            for n in names:
+                out[n][k] = data.oMi[index[n]].act(levers[n])
+        return out
 
 
 class CobraModel(RobotModel):

@@ -77,6 +77,9 @@ class TwinOptions:
         solref: MuJoCo's contact reference ``(time constant [s], damping ratio [1])``.
         solimp: MuJoCo's contact impedance ``(d0, dwidth, width [m], midpoint, power)``.
         timestep: [s].
+        self_collision: with ``contact="cylinder"``, whether the robot's cylinders also collide
+            with each other (MuJoCo's default); False leaves ground contacts only, as in our
+            simulator (for a like-for-like speed comparison).
 
     Raises:
         InputError: naming the option that is out of range or inconsistent.
@@ -97,6 +100,7 @@ class TwinOptions:
     solref: tuple[float, float] = (0.02, 1.0)
     solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
     timestep: float = 1e-3
+    self_collision: bool = True
 
     def __post_init__(self) -> None:
         for name in ("armature", "damping", "frictionloss"):
@@ -169,6 +173,8 @@ def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelP
     for g in spec.geoms:
         g.friction = options.friction
         g.solref, g.solimp = options.solref, options.solimp
+        if not options.self_collision:
+            g.conaffinity = 0  # a robot geom then meets only the ground (its conaffinity stays 1)
     if options.ground:
         spec.worldbody.add_geom(name="ground", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1],
                                 friction=options.friction, solref=options.solref, solimp=options.solimp)

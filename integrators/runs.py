@@ -131,7 +131,7 @@ def trajectory_to_run(model: CobraModel, traj: Trajectory, t_out: np.ndarray | N
     q = traj.q
     heads = q[:, 0:3]
     quat = np.column_stack([q[:, 6], q[:, 3], q[:, 4], q[:, 5]])
-    bodies = {name: np.array([model.body_centres(qi)[name] for qi in q]) for name in TRACKED_BODIES}
+    bodies = model.body_tracks(q, TRACKED_BODIES)
     t = traj.t
     cols = {"q_ref": traj.q_goal, "q": traj.q_meas, "dq": traj.v[:, model.n_base:], "current": traj.current,
             "head_pos": heads, "head_quat": quat}

@@ -91,12 +91,9 @@ def head_frame_positions(take: MotiveTake, head: str, bodies: Mapping[str, str])
 
 def model_positions(model: CobraModel, q: np.ndarray, bodies: Sequence[str]) -> np.ndarray:
     """(N, k, 3) position of each body centre in the head's frame [m] from joint angles (N, 11)."""
-    out = np.empty((len(q), len(bodies), 3))
     origin, level = np.zeros(3), np.array([1.0, 0.0, 0.0, 0.0])
-    for i, qi in enumerate(q):
-        centres = model.body_centres(model.configuration(qi, origin, level))
-        out[i] = [centres[b] for b in bodies]
-    return out
+    tracks = model.body_tracks(np.array([model.configuration(qi, origin, level) for qi in q]), bodies)
+    return np.stack([tracks[b] for b in bodies], axis=1)
 
 
 def estimate_clock_offset(take: MotiveTake, joints: tuple[np.ndarray, np.ndarray, np.ndarray | None], *,

@@ -160,9 +160,9 @@ def measure(t: np.ndarray, q_pin: np.ndarray, q_joint_meas: np.ndarray, run_plan
     quat[lost] = np.nan
     bodies = {}
     every = max(1, int(round(BODY_SAMPLE_S / (t[1] - t[0]))))
+    tracks = model.body_tracks(q_pin[::every], TRACKED_BODIES)
     for name in TRACKED_BODIES:
-        pos = np.array([model.body_centres(qi)[name] for qi in q_pin[::every]])
-        pos = interpolate_rows(t_m, t[::every], pos) + rng.normal(0, MOCAP_NOISE_M, (len(t_m), 3))
+        pos = interpolate_rows(t_m, t[::every], tracks[name]) + rng.normal(0, MOCAP_NOISE_M, (len(t_m), 3))
         pos[_dropouts(rng, len(t_m))] = np.nan
         bodies[name] = np.round(interpolate_rows(t_j, t_m, pos, max_gap_samples=0), 5)
     meta = {

@@ -6,6 +6,7 @@ import pinocchio as pin
 import pytest
 
 from cobra_model import design
+from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from integrators import mujoco_twin
 
@@ -124,3 +125,16 @@ def test_mass_matrix_and_bias_match_mujoco(cobra, seed):
     sdot_v[:3] = -np.cross(v[3:6], v[:3])
     b_pin = S.T @ (cobra.bias(q, v) + M @ sdot_v)
     assert np.abs(b_pin - d.qfrc_bias).max() <= 1e-8 * max(1.0, np.abs(d.qfrc_bias).max())
+
+
+def test_body_tracks_are_body_centres_of_many_configurations(cobra) -> None:
+    rng = np.random.default_rng(3)
+    Q = np.array([cobra.configuration(rng.uniform(-1, 1, 11), rng.normal(size=3), rng.normal(size=4))
+                  for _ in range(5)])
+    tracks = cobra.body_tracks(Q, ("link_6", "tail"))
+    for k, q in enumerate(Q):
+        centres = cobra.body_centres(q)
+        assert np.array_equal(tracks["link_6"][k], centres["link_6"])
+        assert np.array_equal(tracks["tail"][k], centres["tail"])
+    with pytest.raises(InputError, match=r"unknown link\(s\) \['link_12'\]"):
+        cobra.body_tracks(Q, ("link_12",))
