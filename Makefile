@@ -23,8 +23,18 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -q
 
+# Every benchmark, one after another (never two at once: they time themselves). Hours in all:
+# the MuJoCo fits and the diagnosis accuracy dominate. Each writes benchmarks/results/ or prints
+# its table (fit_speed, recovery and diagnose_accuracy print only, for now).
 bench: $(STAMP)
 	$(PY) benchmarks/sim_speed.py
+	$(PY) benchmarks/fault_matrix.py
+	$(PY) benchmarks/fit_speed.py
+	$(PY) benchmarks/recovery.py
+	$(PY) benchmarks/interval_coverage.py
+	$(PY) benchmarks/diagnose_accuracy.py
+	$(PY) benchmarks/mujoco_robustness.py
+	$(PY) benchmarks/mujoco_fit.py
 
 clean-venv:
 	rm -rf $(VENV)

@@ -15,7 +15,7 @@ robots with mesh collisions (e.g. Solo) name their contact frames explicitly.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import cached_property
+from functools import cached_property, lru_cache
 from pathlib import Path
 from typing import Sequence
 
@@ -99,7 +99,8 @@ class RobotModel:
     """A URDF in Pinocchio, optionally with a free-flyer root, plus its ground-contact features.
 
     Do not mutate :attr:`pin_model`; derive a new model instead (:meth:`with_armature`,
-    :meth:`with_link_mass`).
+    :meth:`with_link_mass`). Models are shared: :meth:`CobraModel.load` returns the same model
+    for the same URDF, and a derived model is made once per model and value.
     """
 
     def __init__(self, pin_model: pin.Model, features: ContactFeatures, urdf_path: Path | None):
@@ -107,6 +108,7 @@ class RobotModel:
         self.features = features
         self.urdf_path = urdf_path
         self.chain = self._chain_arrays(pin_model)
+        self._derived: dict[tuple, RobotModel] = {}
 
     # -- construction -----------------------------------------------------------------------
     @classmethod
@@ -183,11 +185,14 @@ class RobotModel:
 
     def with_armature(self, armature: np.ndarray) -> "RobotModel":
         """A copy whose actuated joints carry transmission inertia ``armature`` [kg m^2] (n_joints,)."""
-        model = self.pin_model.copy()
-        arm = np.zeros(model.nv)
+        arm = np.zeros(self.nv)
         arm[self.n_base:] = np.broadcast_to(np.asarray(armature, dtype=float), (self.n_joints,))
-        model.armature = arm
-        return type(self)(model, self.features, self.urdf_path)
+        key = ("armature", tuple(arm))
+        if key not in self._derived:
+            model = self.pin_model.copy()
+            model.armature = arm
+            self._derived[key] = type(self)(model, self.features, self.urdf_path)
+        return self._derived[key]
 
     def with_gravity(self, gravity: np.ndarray) -> "RobotModel":
         """A copy with gravity vector ``gravity`` [m/s^2] (e.g. zeros for invariance tests)."""
@@ -203,6 +208,9 @@ class RobotModel:
 
     def with_link_mass(self, body: str, delta_kg: float) -> "RobotModel":
         """A copy with ``delta_kg`` added to link ``body`` at its centre of mass (inertia scaled)."""
+        key = ("link_mass", body, float(delta_kg))
+        if key in self._derived:
+            return self._derived[key]
         model = self.pin_model.copy()
         jid = self.body_joint_id(body)
         inert = model.inertias[jid]
@@ -210,7 +218,8 @@ class RobotModel:
         if m <= 0:
             raise InputError(f"link {body!r}: mass {inert.mass} + {delta_kg} kg is not positive")
         model.inertias[jid] = pin.Inertia(m, inert.lever, inert.inertia * (m / inert.mass))
-        return type(self)(model, self.features, self.urdf_path)
+        self._derived[key] = type(self)(model, self.features, self.urdf_path)
+        return self._derived[key]
 
     # -- sizes and names --------------------------------------------------------------------
     @property
@@ -443,11 +452,10 @@ class CobraModel(RobotModel):
 
     @classmethod
     def load(cls, urdf: str | Path = DEFAULT_URDF) -> "CobraModel":
-        """Load ``urdf/cobra.urdf`` (or another COBRA URDF) with a free-flyer head."""
-        model = cls.from_urdf(urdf, floating=True)
-        if model.n_joints != design.NUM_JOINTS:
-            raise InputError(f"{urdf}: COBRA has {design.NUM_JOINTS} joints, this URDF has {model.n_joints}")
-        return model
+        """Load ``urdf/cobra.urdf`` (or another COBRA URDF) with a free-flyer head; the same
+        model object for the same unchanged file (models are not mutated)."""
+        path = Path(urdf).resolve()
+        return _load_cobra(cls, path, path.stat().st_mtime_ns if path.exists() else 0)
 
     def rest_configuration(self, q_joints: np.ndarray | None = None, head_xy: tuple[float, float] = (0.0, 0.0),
                            heading_rad: float = 0.0) -> np.ndarray:
@@ -457,3 +465,12 @@ class CobraModel(RobotModel):
             q_joints, np.array([head_xy[0], head_xy[1], design.MODULE_RADIUS_M]),
             np.array([np.cos(half), 0.0, 0.0, np.sin(half)]),
         )
+
+
+@lru_cache(maxsize=8)
+def _load_cobra(cls: type[CobraModel], path: Path, _mtime_ns: int) -> CobraModel:
+    """:meth:`CobraModel.load` of one version of a file (the modification time is part of the key)."""
+    model = cls.from_urdf(path, floating=True)
+    if model.n_joints != design.NUM_JOINTS:
+        raise InputError(f"{path}: COBRA has {design.NUM_JOINTS} joints, this URDF has {model.n_joints}")
+    return model

@@ -125,3 +125,19 @@ def test_fit_on_joint_only_runs_fits_the_joints_and_says_the_head_is_left_out(jo
     # the joints alone pin the motor constant: 10 % low, recovered to 1 %
     fitted = ModelParameters.load(out).value("motor_km")
     assert fitted == pytest.approx(0.9 * ModelParameters.nominal().motor_km, rel=0.01)
+
+
+@pytest.mark.slow
+def test_diagnose_on_joint_only_runs_judges_on_the_joints(joint_only, tmp_path, capsys):
+    train, hold = joint_only
+    out = tmp_path / "diag"
+    assert main(["diagnose", *map(str, train), "--holdout", str(hold), "--out", str(out), "--free", "motor_km",
+                 "--max-effects", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert "held-out head final error omitted (joint-only runs: no head pose)" in printed
+    doc = json.loads((out / "diagnosis.json").read_text())
+    # nothing is missing from the model but the motor constant, which the base fit finds
+    assert doc["effects"] == []
+    assert "head not measured: joint-only runs" in doc["verdict"]
+    assert doc["gap_after"]["mean"]["head_final_error_m"] is None
+    assert doc["gap_after"]["mean"]["joint_rmse_rad"] < 1e-3

@@ -20,15 +20,14 @@ FRAME_HZ = 120.0
 
 @pytest.fixture(scope="module")
 def recording(cobra):
-    """An 8 s run seen twice: a 120 Hz take whose clock started 2 s before the gait (the robot
-    at rest meanwhile) and runs 1 s past it, with 0.5 mm of marker noise and dropouts; and a
-    50 Hz joint log on the gait's clock with quantised encoders."""
+    """An 8 s run seen twice: a 120 Hz take whose clock runs 0.137 s ahead of the joint log's
+    (take time = joint-log time + 0.137 s; the robot rests before the gait starts at joint-log
+    time 0), with 0.5 mm of marker noise and dropouts; and a 50 Hz joint log with quantised
+    encoders."""
     run = simulate_gait(SidewindingGait(0.5, ramp_s=1.0), 8.0, sample_rate_hz=FRAME_HZ, model=cobra)
     rng = np.random.default_rng(7)
-    lead = 2.0 - OFFSET_S  # take time of the gait's start is 2 s; joint-log time 0 is at take time 0.137
-    n_rest = int(round(lead * FRAME_HZ))
-    times = np.arange(n_rest + len(run.t)) / FRAME_HZ
-    times[n_rest:] = lead + run.t
+    n_rest = int(OFFSET_S * FRAME_HZ)  # frames before the gait starts, at rest
+    times = np.concatenate([np.arange(n_rest) / FRAME_HZ, OFFSET_S + run.t])
 
     def track(pos: np.ndarray, quat: np.ndarray | None, name: str) -> RigidBodyTrack:
         p = np.vstack([np.repeat(pos[:1], n_rest, axis=0), pos]) + rng.normal(0, 5e-4, (len(times), 3))
@@ -41,23 +40,21 @@ def recording(cobra):
                                                      "link_6": track(run.bodies["link_6"], None, "link_6"),
                                                      "tail": track(run.bodies["tail"], None, "tail")},
                       FRAME_HZ, "Z", "Meters", {}, Path("take.csv"))
-    t_log = np.arange(0.0, 8.0 - OFFSET_S, 0.02)
-    q = interpolate_rows(t_log + OFFSET_S, run.t, run.q)  # the log's clock: joint-log t = gait time - 0.137
+    t_log = np.arange(0.0, 8.0, 0.02)
     step = 2 * np.pi / ENCODER_COUNTS
+    q = interpolate_rows(t_log, run.t, run.q)
     return take, (t_log, np.round(q / step) * step, None)
 
 
 def test_a_known_offset_is_recovered_within_one_mocap_frame(recording, cobra) -> None:
     take, joints = recording
     est = estimate_clock_offset(take, joints, model=cobra)
-    # take time = joint-log time + offset: joint-log 0 is gait time 0.137, at take time 2.137
-    truth = 2.0
-    assert abs(est.offset_s - truth) < 1.0 / FRAME_HZ, est
+    assert abs(est.offset_s - OFFSET_S) < 1.0 / FRAME_HZ, est
     assert est.std_s < 1.0 / FRAME_HZ
     assert est.bodies == ("link_6", "tail")
     # the gait's start told the periods apart: a whole period away fits far worse
     assert est.runner_up_rms_m > 3 * est.rms_m
-    assert "take time = joint-log time + 2.0" in est.describe()
+    assert "take time = joint-log time + 0.13" in est.describe()
 
 
 def test_only_the_head_tracked_or_too_little_overlap_is_an_error(recording, cobra) -> None:
@@ -70,6 +67,6 @@ def test_only_the_head_tracked_or_too_little_overlap_is_an_error(recording, cobr
                                                                                v.quats[:200])
                                                              for k, v in take.bodies.items()},
                        take.frame_rate, "Z", "Meters", {}, take.source)
-    with pytest.raises(InputError, match=r"take.csv spans \[0, 1.65833\] s and the joint log spans \[0, 7.86\] s: "
+    with pytest.raises(InputError, match=r"take.csv spans \[0, 1.601\] s and the joint log spans \[0, 7.98\] s: "
                                          r"no shift leaves one gait cycle \(\d\.\d\d s\) of overlap"):
         estimate_clock_offset(short, joints, model=cobra)
