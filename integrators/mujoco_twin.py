@@ -77,6 +77,11 @@ class TwinOptions:
         solref: MuJoCo's contact reference ``(time constant [s], damping ratio [1])``.
         solimp: MuJoCo's contact impedance ``(d0, dwidth, width [m], midpoint, power)``.
         timestep: [s].
+        command_delay: the servos receive each command this long after it was sent [s] (a
+            buffer on the bus: :func:`sysid.mujoco_runs.record_mujoco` delays the goals; the
+            run logs them when sent).
+        encoder_offset: every encoder reads the joint angle plus this [rad], and the servo loop
+            holds its goal in readings (:func:`sysid.mujoco_runs.record_mujoco`).
         self_collision: with ``contact="cylinder"``, whether the robot's cylinders also collide
             with each other (MuJoCo's default); False leaves ground contacts only, as in our
             simulator (for a like-for-like speed comparison).
@@ -100,6 +105,8 @@ class TwinOptions:
     solref: tuple[float, float] = (0.02, 1.0)
     solimp: tuple[float, float, float, float, float] = (0.9, 0.95, 0.001, 0.5, 2.0)
     timestep: float = 1e-3
+    command_delay: float = 0.0
+    encoder_offset: float = 0.0
     self_collision: bool = True
 
     def __post_init__(self) -> None:
@@ -130,6 +137,10 @@ class TwinOptions:
                              f"0 < d0 <= dwidth < 1, got {self.solimp}")
         if not self.timestep > 0:
             raise InputError(f"TwinOptions.timestep must be > 0 s, got {self.timestep}")
+        if not 0 <= self.command_delay < 1.0:
+            raise InputError(f"TwinOptions.command_delay must be in [0, 1) s, got {self.command_delay}")
+        if not abs(self.encoder_offset) < 0.5:
+            raise InputError(f"TwinOptions.encoder_offset must be within +-0.5 rad, got {self.encoder_offset}")
 
 
 def servo_stiffness_damping(params: ModelParameters, p_gain: int = 800) -> tuple[float, float]:

@@ -135,12 +135,19 @@ def record_mujoco(run_plan: RunPlan, options: TwinOptions, rng: np.random.Genera
     if not options.ground:
         raise InputError("options.ground must be True: the robot sidewinds on the ground")
     gait = SidewindingGait(run_plan.freq_hz)
-    q0 = Simulator(model).rest_state(gait.q_ref(0.0), head_xy=run_plan.head_xy,
+    offset, delay = options.encoder_offset, options.command_delay
+
+    def goals(t: np.ndarray) -> np.ndarray:
+        """What the servos hold, as true joint angles: the command sent ``delay`` earlier (the
+        first one before that), less the encoder offset (the loop holds its goal in readings)."""
+        return gait.q_ref(np.maximum(np.asarray(t) - delay, 0.0)) - offset
+
+    q0 = Simulator(model).rest_state(goals(np.zeros(1))[0], head_xy=run_plan.head_xy,
                                      heading_rad=run_plan.heading_rad).q
     mj_model = mujoco_twin.build(model.urdf_path, options, params)
-    t, q, q_joints = rollout(mj_model, q0, gait.q_ref, run_plan.duration_s,
+    t, q, q_joints = rollout(mj_model, q0, goals, run_plan.duration_s,
                              error_limit_rad=mujoco_twin.servo_error_limit(options))
-    return measure(t, q, q_joints, run_plan, rng, model, source="mujoco",
+    return measure(t, q, q_joints + offset, run_plan, rng, model, source="mujoco",
                    note=f"MuJoCo twin run ({describe(options)})")
 
 
@@ -151,5 +158,6 @@ def describe(options: TwinOptions) -> str:
              f"forcerange {'none' if options.forcerange is None else f'{options.forcerange:g} N m'}",
              f"ground mu {options.friction[0]:g}", f"lateral/along friction {options.lateral_friction_ratio:g}",
              f"contact {options.contact}", f"servo {options.servo}", f"cone {options.cone}",
-             f"impratio {options.impratio:g}", f"solref {options.solref}", f"solimp {options.solimp}"]
+             f"impratio {options.impratio:g}", f"solref {options.solref}", f"solimp {options.solimp}",
+             f"command delay {options.command_delay:g} s", f"encoder offset {options.encoder_offset:g} rad"]
     return ", ".join(parts)
