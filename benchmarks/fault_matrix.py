@@ -197,11 +197,11 @@ def markdown(rows: list[dict[str, Any]], duration_s: float, at_s: float) -> str:
         received = "-" if r["samples_received"] is None else r["samples_received"]
         lines.append(f"| {r['label']} | {r['status']} | {r['stopped_by']} | {stop} | {left} | {readable} | "
                      f"{r['replies_sent_intact']} / {received} / {r['rows_written']} |")
-    lines += ["", "A servo whose torque is left on after a cut cable is held by its watchdog (it stopped where it "
-              "was and refuses goals); the emulated dead servo hears nothing (as with a broken wire to it), so its "
-              "watchdog stops it; a servo that crashed outright would not. Received minus written: a sample in flight when the stop came (a signal "
-              "between receiving and writing) or refused by the full disk; sent minus received: replies the "
-              "driver gave up on (retried reads)."]
+    lines += ["", "A servo whose torque is left on after a cut cable is held by its watchdog (it stopped where "
+              "it was and refuses goals); the emulated dead servo hears nothing (as with a broken wire to "
+              "it), so its watchdog stops it; a servo that crashed outright would not. Received minus "
+              "written: a sample in flight when the stop came (a signal between receiving and writing) or "
+              "refused by the full disk; sent minus received: replies the driver gave up on (retried reads)."]
     return "\n".join(lines)
 
 

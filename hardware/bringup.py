@@ -160,7 +160,8 @@ def _mismatches(s: ServoSurvey, config: BusConfig, name: str) -> list[str]:
                    f"let it cool")
     mode = s.get(ct.OPERATING_MODE)
     if mode is not None and mode != int(servo.operating_mode):
-        out.append(f"{name}: Operating Mode {_mode_name(mode)}, the configuration asks {_mode_name(int(servo.operating_mode))} "
+        asked = _mode_name(int(servo.operating_mode))
+        out.append(f"{name}: Operating Mode {_mode_name(mode)}, the configuration asks {asked} "
                    f"(cobra record writes it at connect)")
     if servo.operating_mode is OperatingMode.POSITION:
         limits = dict(zip(config.servo_ids, config.position_limits_pulses()))[s.servo_id]

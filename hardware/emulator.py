@@ -229,8 +229,8 @@ class BusEmulator:
 
     def __init__(self, plant: Plant, *, joints: Sequence[JointConfig] | None = None,
                  model_number: int = ct.XH540_W270_MODEL_NUMBER, faults: Sequence[Fault] = (),
-                 encoder_offsets_rad: Sequence[float] | None = None, physics_period_s: float = 1e-3, max_advance_s: float = 5e-3,
-                 max_lag_s: float = 0.1) -> None:
+                 encoder_offsets_rad: Sequence[float] | None = None, physics_period_s: float = 1e-3,
+                 max_advance_s: float = 5e-3, max_lag_s: float = 0.1) -> None:
         self._plant = plant
         self._lock = threading.RLock()
         self._servos = [_Servo(j, model_number) for j in (joints or default_joints())]

@@ -4,8 +4,8 @@
 the pose it holds to the gait's first command in ``settle_s`` (not recorded), then runs the
 control loop for ``duration_s``: every period it sends ``gait.q_ref(t)`` (clamped to the joint
 limits) and reads the present state, and every ``hardware_error_check_every`` cycles it reads
-Hardware Error Status and Bus Watchdog (a servo the watchdog stopped ends the recording). Each sample is appended to the run file as it arrives
-(:class:`~hardware.runwriter.IncrementalRunWriter`).
+Hardware Error Status and Bus Watchdog (a servo the watchdog stopped ends the recording). Each
+sample is appended to the run file as it arrives (:class:`~hardware.runwriter.IncrementalRunWriter`).
 
 Time: ``t`` of a sample is when its goal was sent, from the monotonic clock, relative to the
 start of recording; the present state is read right after (``timing.read_latency_*`` in the
