@@ -12,7 +12,8 @@ figures follow the paper's:
 * :func:`plot_window_correlation` - sliding-window correlation of each run with its command, with
   the min-max band over the joints (the correlation figure);
 * :func:`plot_error_bars` - grouped bars, e.g. final head error per gait before/after tuning (the
-  Euclidean-distance figure).
+  Euclidean-distance figure);
+* :func:`plot_confusion` - the discrepancy workflow's confusion matrix (hidden vs named effect).
 
 Figures are built on :class:`matplotlib.figure.Figure` with an explicit Agg canvas, never through
 ``pyplot``: no global figure state, no GUI backend, safe in worker processes.
@@ -301,4 +302,27 @@ def plot_signature(signatures: Sequence[tuple[str, Any]], out: str | Path, *, ti
     ax2.grid(alpha=0.3)
     if title:
         fig.suptitle(title)
+    return _save(fig, out)
+
+
+def plot_confusion(counts: np.ndarray, truth: Sequence[str], named: Sequence[str], out: str | Path, *,
+                   title: str = "") -> Path:
+    """Heatmap of a confusion matrix: ``counts[i, j]`` datasets with effect ``truth[i]`` hidden
+    whose diagnosis named ``named[j]`` first ("none": nothing named); each cell annotated."""
+    counts = np.asarray(counts)
+    if counts.shape != (len(truth), len(named)):
+        raise InputError(f"plot_confusion: counts {counts.shape} does not match {len(truth)} x {len(named)} labels")
+    fig = _new_figure(1.2 + 0.75 * len(named), 1.0 + 0.5 * len(truth))
+    ax = fig.add_subplot()
+    ax.imshow(counts, cmap="Blues", vmin=0, aspect="auto")
+    for i in range(len(truth)):
+        for j in range(len(named)):
+            ax.text(j, i, str(int(counts[i, j])), ha="center", va="center",
+                    color="white" if counts[i, j] > 0.6 * counts.max() else "black")
+    ax.set_xticks(range(len(named)), named, rotation=40, ha="right")
+    ax.set_yticks(range(len(truth)), truth)
+    ax.set_xlabel("named first")
+    ax.set_ylabel("hidden")
+    if title:
+        ax.set_title(title, fontsize=10)
     return _save(fig, out)

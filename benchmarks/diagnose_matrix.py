@@ -1,0 +1,236 @@
+"""Confusion matrix of the discrepancy workflow: the effect hidden against the effect named first.
+
+Each job makes one small dataset and diagnoses it: two training runs (0.5 and 0.65 Hz) and one
+held-out run (0.5 Hz) of ``--duration`` seconds from random poses, measured like the reference
+dataset, from a robot whose ``mu_c``, ``joint_damping`` and ``motor_km`` are 9-60 % off the
+nominal values (``ERROR``, free in the fit) and which has one library effect at a magnitude,
+or none (a null). Two engines make the data:
+
+- ``sim``: this project's simulator with the effect added (every library effect);
+- ``mujoco``: the MuJoCo twin (``sysid.mujoco_runs``) with the effect expressed on MuJoCo's
+  side (:data:`MUJOCO_OPTIONS`: joint ``frictionloss``, actuator ``forcerange``, commands
+  delayed in a buffer, encoders offset, body-aligned anisotropic contact friction; the ground's
+  parameters are then free too). Backlash and a payload mass are not expressed in the twin and
+  are left out of MuJoCo's matrix.
+
+Magnitudes: each effect's realistic one (``Effect.realistic``) and one near its detection limit
+on this simulator (:data:`NEAR_LIMIT`, the smallest magnitudes named in the README's
+detection-limit table). Seeds: :data:`DEV_SEEDS` were used while developing the workflow and
+its tests; the reported figures come from ``--seeds`` (default :data:`EVAL_SEEDS`).
+
+Every diagnosis is an independent job run through the project's executor: on this machine one
+after another (``--executor local``, the default; each diagnosis already uses both cores), or as
+Ray tasks on a local Ray started here or on the cluster at ``--ray-address``
+(``--executor ray``). Writes ``benchmarks/results/diagnose_matrix.{json,md}`` and a heatmap per
+engine (``diagnose_matrix_<engine>.png``): the confusion matrix, the false-positive rate on the
+nulls, the median held-out gap shrink when the right effect is named, and the wall time per
+diagnosis.
+
+Usage: ``python benchmarks/diagnose_matrix.py [--engines sim,mujoco] [--effects ...]
+[--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--executor local|ray]``.
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import sys
+import time
+from collections import Counter
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from benchmarks._results import RESULTS_DIR, write_results  # noqa: E402
+from cobra_model import CobraModel, ModelParameters  # noqa: E402
+from integrators.simulator import Simulator  # noqa: E402
+from sysid.dataset import RunPlan, record  # noqa: E402
+from sysid.diagnose import DiagnoseConfig, diagnose  # noqa: E402
+from sysid.effects import EffectLibrary  # noqa: E402
+from sysid.executor import make_executor  # noqa: E402
+
+ERROR = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
+FREE_SIM = ["mu_c", "joint_damping", "motor_km"]
+#: On MuJoCo's runs the ground's shape and stiffness are free as well (another engine's contact).
+FREE_MUJOCO = FREE_SIM + ["mu_s", "k2", "friction_cone", "contact_rounding"]
+DEV_SEEDS = (21,)
+EVAL_SEEDS = (31, 32, 33)
+#: Library effect -> the MuJoCo twin's option that expresses it (same value and unit).
+MUJOCO_OPTIONS = {"joint_coulomb_friction": "frictionloss", "torque_saturation": "forcerange",
+                  "actuator_delay": "command_delay", "encoder_offset": "encoder_offset",
+                  "anisotropic_ground_friction": "lateral_friction_ratio"}
+#: Magnitudes near each effect's detection limit on this simulator (README, detection limit).
+NEAR_LIMIT = {"joint_coulomb_friction": 0.075, "backlash": 0.005, "actuator_delay": 0.01,
+              "torque_saturation": 3.9, "anisotropic_ground_friction": 1.25, "encoder_offset": 0.0075,
+              "link_mass_error": 0.2}
+ENGINES = ("sim", "mujoco")
+
+
+@dataclasses.dataclass(frozen=True)
+class Job:
+    """One dataset and its diagnosis."""
+
+    engine: str
+    effect: str | None  # None: a null (parameter error only)
+    magnitude: float | None
+    level: str          # "realistic", "near_limit" or "null"
+    seed: int
+    duration_s: float
+
+
+def make_runs(job: Job, model: CobraModel) -> list:
+    """Three runs of ``job`` (two training, one held out) on its engine."""
+    library = EffectLibrary()
+    truth = ModelParameters.nominal().with_values(**ERROR)
+    rng = np.random.default_rng(job.seed)
+    plans = [RunPlan(f"r{i}", f, job.duration_s, (rng.uniform(-1, 1), rng.uniform(-1, 1)), rng.uniform(0, 2 * np.pi),
+                     "train") for i, f in enumerate((0.5, 0.65, 0.5))]
+    if job.engine == "sim":
+        hidden = truth if job.effect is None else library.transform(truth, {job.effect: job.magnitude}, frozen=True)
+        sim = Simulator(model, hidden)
+        return [record(sim, p, rng, model) for p in plans]
+    from sysid.mujoco_runs import record_mujoco, twin_options
+    options = twin_options(truth)
+    if job.effect is not None:
+        options = dataclasses.replace(options, **{MUJOCO_OPTIONS[job.effect]: job.magnitude})
+    return [record_mujoco(p, options, rng, model, truth) for p in plans]
+
+
+def run_job(job: Job) -> dict[str, Any]:
+    """Diagnose one dataset; the row of the results."""
+    model = CobraModel.load()
+    runs = make_runs(job, model)
+    free = FREE_SIM if job.engine == "sim" else FREE_MUJOCO
+    t0 = time.perf_counter()
+    d = diagnose(runs[:2], runs[2:], params=ModelParameters.nominal().with_frozen(free=free),
+                 config=DiagnoseConfig(max_effects=1))
+    wall = time.perf_counter() - t0
+    named = d.effects[0]["name"] if d.effects else None
+    before, after = d.gap_before["mean"], d.gap_after["mean"]
+    return {"engine": job.engine, "effect": job.effect, "level": job.level, "magnitude": job.magnitude,
+            "seed": job.seed, "named": named, "structural": [s["name"] for s in d.structural],
+            "head_final_before_m": before["head_final_error_m"], "head_final_after_m": after["head_final_error_m"],
+            "joint_rmse_before_rad": before["joint_rmse_rad"], "joint_rmse_after_rad": after["joint_rmse_rad"],
+            "gap_shrink": 1.0 - after["head_final_error_m"] / before["head_final_error_m"]
+            if before["head_final_error_m"] else float("nan"),
+            "wall_s": wall}
+
+
+def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: list[int], nulls: int,
+             duration_s: float) -> list[Job]:
+    """Every (engine, effect, magnitude, seed) job, then ``nulls`` nulls per engine (seeds cycled)."""
+    library = EffectLibrary()
+    out = []
+    for engine in engines:
+        for effect in effects:
+            if engine == "mujoco" and effect not in MUJOCO_OPTIONS:
+                continue
+            for level in levels:
+                magnitude = library[effect].realistic if level == "realistic" else NEAR_LIMIT[effect]
+                out += [Job(engine, effect, magnitude, level, seed, duration_s) for seed in seeds]
+        out += [Job(engine, None, None, "null", seeds[k % len(seeds)] + 1000 * (k // len(seeds)), duration_s)
+                for k in range(nulls)]
+    return out
+
+
+def summary(rows: list[dict[str, Any]], engine: str) -> dict[str, Any]:
+    """Confusion counts, rates and medians of one engine's rows."""
+    mine = [r for r in rows if r["engine"] == engine]
+    hidden = [r for r in mine if r["effect"] is not None]
+    nulls = [r for r in mine if r["effect"] is None]
+    right = [r for r in hidden if r["named"] == r["effect"]]
+    confusion = Counter((r["effect"] or "none", r["named"] or "none") for r in mine)
+    return {"engine": engine, "diagnoses": len(mine),
+            "named_first_rate": len(right) / len(hidden) if hidden else float("nan"),
+            "false_positive_rate": sum(r["named"] is not None for r in nulls) / len(nulls) if nulls else float("nan"),
+            "median_gap_shrink_when_right": float(np.median([r["gap_shrink"] for r in right])) if right else float("nan"),
+            "median_wall_s": float(np.median([r["wall_s"] for r in mine])) if mine else float("nan"),
+            "confusion": {f"{t} -> {n}": c for (t, n), c in sorted(confusion.items())}}
+
+
+def heatmap(rows: list[dict[str, Any]], engine: str, out: Path) -> Path:
+    """The engine's confusion matrix as a PNG (rows: hidden, columns: named first)."""
+    from sysid.plots import plot_confusion
+    mine = [r for r in rows if r["engine"] == engine]
+    truth = sorted({r["effect"] or "none" for r in mine})
+    named = sorted({r["named"] or "none" for r in mine} | set(truth))
+    counts = np.zeros((len(truth), len(named)), dtype=int)
+    for r in mine:
+        counts[truth.index(r["effect"] or "none"), named.index(r["named"] or "none")] += 1
+    return plot_confusion(counts, truth, named, out, title=f"{engine}: hidden vs named first")
+
+
+def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int]) -> str:
+    lines = [f"Seeds {', '.join(map(str, seeds))} (developed on {', '.join(map(str, DEV_SEEDS))}); two 0.5/0.65 Hz "
+             "training runs and one 0.5 Hz held-out run per job.", "",
+             "| engine | diagnoses | named first (right) | false positives on nulls | median held-out head gap "
+             "shrink when right | median wall per diagnosis [s] |", "|---|---:|---:|---:|---:|---:|"]
+    for engine in engines:
+        s = summary(rows, engine)
+        lines.append(f"| {engine} | {s['diagnoses']} | {100 * s['named_first_rate']:.0f} % | "
+                     f"{100 * s['false_positive_rate']:.0f} % | {100 * s['median_gap_shrink_when_right']:.0f} % | "
+                     f"{s['median_wall_s']:.0f} |")
+    lines += ["", "| engine | hidden effect | level | magnitude | seed | named first | structural | held-out final "
+              "head [m] | joint RMSE [rad] | wall [s] |", "|---|---|---|---:|---:|---|---|---|---|---:|"]
+    for r in rows:
+        mag = "-" if r["magnitude"] is None else f"{r['magnitude']:g}"
+        lines.append(f"| {r['engine']} | {r['effect'] or 'none'} | {r['level']} | {mag} | {r['seed']} | "
+                     f"{r['named'] or 'none'} | {', '.join(r['structural']) or '-'} | "
+                     f"{r['head_final_before_m']:.4f} -> {r['head_final_after_m']:.4f} | "
+                     f"{r['joint_rmse_before_rad']:.4f} -> {r['joint_rmse_after_rad']:.4f} | {r['wall_s']:.0f} |")
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    effects_all = list(EffectLibrary().names)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--engines", default=",".join(ENGINES), help=f"subset of {', '.join(ENGINES)}")
+    parser.add_argument("--effects", default=",".join(effects_all), help="subset of the library's effects")
+    parser.add_argument("--magnitudes", default="realistic,near_limit", help="realistic and/or near_limit")
+    parser.add_argument("--seeds", default=",".join(map(str, EVAL_SEEDS)),
+                        help=f"data seeds (default {','.join(map(str, EVAL_SEEDS))}; {DEV_SEEDS} used while developing)")
+    parser.add_argument("--nulls", type=int, default=6, help="null datasets per engine (default 6)")
+    parser.add_argument("--duration", type=float, default=3.0, help="run length [s] (default 3)")
+    parser.add_argument("--executor", choices=("local", "ray"), default="local")
+    parser.add_argument("--ray-address", default=None, help="join this Ray cluster (with --executor ray)")
+    args = parser.parse_args(argv)
+    engines = [e for e in args.engines.split(",") if e]
+    effects = [e for e in args.effects.split(",") if e]
+    levels = [m for m in args.magnitudes.split(",") if m]
+    bad = ([e for e in engines if e not in ENGINES] + [e for e in effects if e not in effects_all]
+           + [m for m in levels if m not in ("realistic", "near_limit")])
+    if bad or not engines:
+        parser.error(f"unknown engine(s), effect(s) or magnitude(s): {bad}; engines {', '.join(ENGINES)}, "
+                     f"effects {', '.join(effects_all)}, magnitudes realistic, near_limit")
+    try:
+        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    except ValueError:
+        parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
+    if set(seeds) & set(DEV_SEEDS):
+        print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
+    jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration)
+    executor = make_executor(args.executor, workers=1, ray_address=args.ray_address)
+    print(f"{len(jobs)} diagnoses on {args.executor} ({executor.workers} worker(s))", file=sys.stderr, flush=True)
+    rows: list[dict[str, Any]] = []
+    t0 = time.perf_counter()
+    batch = max(1, executor.workers)
+    for k in range(0, len(jobs), batch):
+        rows += executor.map(run_job, jobs[k:k + batch])
+        r = rows[-1]
+        print(f"[{len(rows)}/{len(jobs)} {time.perf_counter() - t0:.0f} s] {r['engine']} {r['effect'] or 'null'} "
+              f"seed {r['seed']}: named {r['named'] or 'none'}", file=sys.stderr, flush=True)
+        meta = {"engines": engines, "effects": effects, "magnitudes": levels, "seeds": seeds,
+                "dev_seeds": list(DEV_SEEDS), "nulls": args.nulls, "duration_s": args.duration,
+                "executor": args.executor, "summary": [summary(rows, e) for e in engines]}
+        write_results("diagnose_matrix", rows, meta, markdown(rows, engines, seeds))
+    executor.close()
+    for engine in engines:
+        heatmap(rows, engine, RESULTS_DIR / f"diagnose_matrix_{engine}.png")
+    print(markdown(rows, engines, seeds))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

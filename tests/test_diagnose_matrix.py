@@ -1,0 +1,50 @@
+"""The confusion-matrix benchmark's bookkeeping: jobs, rates and the heatmap (no diagnosis run)."""
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+
+from benchmarks.diagnose_matrix import MUJOCO_OPTIONS, jobs_for, summary  # noqa: E402
+from cobra_model.errors import InputError  # noqa: E402
+from sysid.plots import plot_confusion  # noqa: E402
+
+
+def _row(engine: str, effect: str | None, named: str | None, shrink: float = 0.9, wall: float = 40.0) -> dict:
+    return {"engine": engine, "effect": effect, "named": named, "gap_shrink": shrink, "wall_s": wall}
+
+
+def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_express() -> None:
+    jobs = jobs_for(["sim", "mujoco"], ["backlash", "actuator_delay"], ["realistic", "near_limit"], [31, 32], 3, 3.0)
+    sim = [j for j in jobs if j.engine == "sim"]
+    mujoco = [j for j in jobs if j.engine == "mujoco"]
+    assert len(sim) == 2 * 2 * 2 + 3 and len(mujoco) == 1 * 2 * 2 + 3  # no backlash in MuJoCo's twin
+    assert "backlash" not in MUJOCO_OPTIONS
+    nulls = [j for j in sim if j.effect is None]
+    assert [j.seed for j in nulls] == [31, 32, 1031]  # distinct data for every null
+    assert {j.magnitude for j in sim if j.effect == "actuator_delay"} == {0.04, 0.01}
+
+
+def test_summary_counts_right_names_false_positives_and_medians() -> None:
+    rows = [_row("sim", "backlash", "backlash", 0.9, 30), _row("sim", "backlash", "actuator_delay", 0.1, 50),
+            _row("sim", "actuator_delay", "actuator_delay", 0.7, 40), _row("sim", None, None, wall=20),
+            _row("sim", None, "backlash", wall=60), _row("mujoco", "encoder_offset", None)]
+    s = summary(rows, "sim")
+    assert s["diagnoses"] == 5
+    assert s["named_first_rate"] == pytest.approx(2 / 3)
+    assert s["false_positive_rate"] == pytest.approx(0.5)
+    assert s["median_gap_shrink_when_right"] == pytest.approx(0.8)
+    assert s["median_wall_s"] == pytest.approx(40)
+    assert s["confusion"] == {"actuator_delay -> actuator_delay": 1, "backlash -> actuator_delay": 1,
+                              "backlash -> backlash": 1, "none -> backlash": 1, "none -> none": 1}
+
+
+def test_the_heatmap_is_written_and_checks_its_shape(tmp_path: Path) -> None:
+    out = plot_confusion(np.array([[2, 1], [0, 3]]), ["a", "none"], ["a", "none"], tmp_path / "m.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    with pytest.raises(InputError, match="does not match 2 x 3 labels"):
+        plot_confusion(np.zeros((2, 2)), ["a", "b"], ["a", "b", "c"], tmp_path / "bad.png")
