@@ -70,3 +70,39 @@ def test_only_the_head_tracked_or_too_little_overlap_is_an_error(recording, cobr
     with pytest.raises(InputError, match=r"take.csv spans \[0, 1.601\] s and the joint log spans \[0, 7.98\] s: "
                                          r"no shift leaves one gait cycle \(\d\.\d\d s\) of overlap"):
         estimate_clock_offset(short, joints, model=cobra)
+
+
+def _cells(values: np.ndarray) -> str:
+    return ",".join("" if not np.isfinite(v) else f"{v:.6f}" for v in values)
+
+
+def test_import_optitrack_estimates_and_uses_the_offset(recording, tmp_path: Path, capsys) -> None:
+    """End to end: the take as a Z-up Motive export, the joint log as a CSV, no --time-offset."""
+    from cobra_cli.main import main
+    from cobra_model.runs import read_run
+
+    take, (t_log, q, _) = recording
+    head = take.bodies["head"]
+    names = ["head"] * 7 + ["link_6"] * 3 + ["tail"] * 3
+    lines = ["Format Version,1.23,Take Name,clock,Export Frame Rate,120.000000,Rotation Type,Quaternion,"
+             "Length Units,Meters,Coordinate Space,Global,Up Axis,Z", "",
+             ",Type," + ",".join(["Rigid Body"] * len(names)), ",Name," + ",".join(names),
+             ",ID," + ",".join(["1"] * 7 + ["2"] * 3 + ["3"] * 3),
+             ",," + ",".join(["Rotation"] * 4 + ["Position"] * 9),
+             "Frame,Time (Seconds)," + ",".join(list("XYZW") + list("XYZ") * 3)]
+    for k, t in enumerate(take.times):
+        w, x, y, z = head.quats[k]
+        lines.append(f"{k},{t:.6f}," + ",".join([_cells(np.array([x, y, z, w])), _cells(head.positions[k]),
+                                                 _cells(take.bodies["link_6"].positions[k]),
+                                                 _cells(take.bodies["tail"].positions[k])]))
+    take_csv = tmp_path / "take.csv"
+    take_csv.write_text("\n".join(lines) + "\n")
+    joints_csv = tmp_path / "joints.csv"
+    joints_csv.write_text("t," + ",".join(f"q_{j}" for j in range(1, 12)) + "\n"
+                          + "\n".join(f"{t:.4f}," + ",".join(f"{v:.6f}" for v in row) for t, row in zip(t_log, q)) + "\n")
+    out = tmp_path / "run.csv"
+    assert main(["import-optitrack", str(take_csv), "--joints", str(joints_csv), "--out", str(out)]) == 0
+    assert "clock offset estimated from the data: take time = joint-log time + 0.13" in capsys.readouterr().out
+    run = read_run(out)
+    assert abs(run.meta["optitrack"]["time_offset_s"] - OFFSET_S) < 1.0 / FRAME_HZ
+    assert run.meta["optitrack"]["time_offset_estimate"]["bodies"] == ["link_6", "tail"]
