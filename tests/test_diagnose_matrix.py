@@ -15,7 +15,8 @@ from sysid.plots import plot_confusion  # noqa: E402
 
 
 def _row(engine: str, effect: str | None, named: str | None, shrink: float = 0.9, wall: float = 40.0) -> dict:
-    return {"engine": engine, "effect": effect, "named": named, "gap_shrink": shrink, "wall_s": wall}
+    return {"engine": engine, "effect": effect, "named": named, "gap_shrink": shrink, "wall_s": wall,
+            "held_out_cost_reduction": 0.5 + shrink / 2 if named else 0.0}
 
 
 def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_express() -> None:
@@ -38,6 +39,7 @@ def test_summary_counts_right_names_false_positives_and_medians() -> None:
     assert s["named_first_rate"] == pytest.approx(2 / 3)
     assert s["false_positive_rate"] == pytest.approx(0.5)
     assert s["median_gap_shrink_when_right"] == pytest.approx(0.8)
+    assert s["median_cost_reduction_when_right"] == pytest.approx(0.9)
     assert s["median_wall_s"] == pytest.approx(40)
     assert s["confusion"] == {"actuator_delay -> actuator_delay": 1, "backlash -> actuator_delay": 1,
                               "backlash -> backlash": 1, "none -> backlash": 1, "none -> none": 1}
