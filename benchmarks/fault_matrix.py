@@ -23,7 +23,7 @@ Usage: ``python benchmarks/fault_matrix.py [--cases crc,cut] [--duration 3] [--a
 from __future__ import annotations
 
 import argparse
-import errno
+import contextlib
 import math
 import os
 import signal
@@ -32,7 +32,7 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -44,10 +44,9 @@ from cobra_model.runs import read_run  # noqa: E402
 from hardware import control_table as ct  # noqa: E402
 from hardware.config import BusConfig  # noqa: E402
 from hardware.emulator import EmulatorProcess  # noqa: E402
-from hardware.faults import Fault, parse_fault  # noqa: E402
+from hardware.faults import Fault, full_disk_after, parse_fault  # noqa: E402
 from hardware.plant import KinematicPlant  # noqa: E402
 from hardware.recorder import record_gait  # noqa: E402
-from hardware.runwriter import IncrementalRunWriter  # noqa: E402
 from integrators.runs import simulate_like  # noqa: E402
 from sysid.metrics import compare_runs  # noqa: E402
 
@@ -92,59 +91,20 @@ class _SignalAt:
         return GAIT.to_json()
 
 
-class _FullDisk:
-    """A run file whose disk is full from the ``writes``-th write on (ENOSPC, part written)."""
-
-    def __init__(self, fh: Any, writes: int) -> None:
-        self.fh, self.left = fh, writes
-
-    def write(self, data: Any) -> int:
-        self.left -= 1
-        if self.left > 0:
-            return self.fh.write(data)
-        self.fh.write(bytes(data[:7]))
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.fh, name)
-
-
-def _disk_full_after(samples: int) -> Callable[[], None]:
-    """Make every run writer's disk fill at its sample ``samples + 1``; returns the undo."""
-    opened, sidecar = IncrementalRunWriter._open, IncrementalRunWriter._write_sidecar
-    first: set[Path] = set()
-
-    def full_sidecar(self: IncrementalRunWriter, meta: Any) -> None:
-        if self.path in first:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        first.add(self.path)
-        sidecar(self, meta)
-
-    IncrementalRunWriter._open = lambda self, mode: _FullDisk(opened(self, mode), samples + 2)
-    IncrementalRunWriter._write_sidecar = full_sidecar
-
-    def undo() -> None:
-        IncrementalRunWriter._open, IncrementalRunWriter._write_sidecar = opened, sidecar
-    return undo
-
-
 def run_case(key: str, case: Case, duration_s: float, at_s: float, workdir: Path) -> dict[str, Any]:
     """Record once with the case's fault; the row of the table."""
     faults: list[Fault] = [parse_fault(case.spec.format(at=at_s))] if case.spec else []
     gait: Any = GAIT
-    undo = None
     if case.host in ("sigint", "sigterm"):
         gait = _SignalAt(signal.SIGINT if case.host == "sigint" else signal.SIGTERM, at_s)
     previous_sigint = signal.signal(signal.SIGINT, signal.default_int_handler)
-    with EmulatorProcess(KinematicPlant, faults=faults) as emu:
+    with EmulatorProcess(KinematicPlant, faults=faults) as emu, contextlib.ExitStack() as host:
         config = BusConfig(port=emu.port)
         if case.host == "disk":
-            undo = _disk_full_after(int(round(at_s * config.control_rate_hz)))
+            host.enter_context(full_disk_after(int(round(at_s * config.control_rate_hz))))
         try:
             result = record_gait(config, gait, duration_s=duration_s, out=workdir / f"{key}.csv", settle_s=0.0)
         finally:
-            if undo is not None:
-                undo()
             signal.signal(signal.SIGINT, previous_sigint)
         stats = emu.stats()
         torque = [emu.register(i, ct.TORQUE_ENABLE) for i in config.servo_ids]

@@ -80,3 +80,12 @@ class SidewindingGait:
             "phases_rad": list(self.phases_rad),
             "ramp_s": self.ramp_s,
         }
+
+
+def dominant_frequency_hz(t: np.ndarray, angles: np.ndarray) -> float:
+    """The gait frequency [Hz] of joint angles ``angles`` (N, J) sampled at times ``t`` (N,) [s]:
+    the peak of their summed amplitude spectrum (for a recording whose sidecar names no gait)."""
+    y = angles - angles.mean(axis=0)
+    spec = np.abs(np.fft.rfft(y, axis=0)).sum(axis=1)
+    freqs = np.fft.rfftfreq(len(y), float(np.median(np.diff(t))))
+    return float(freqs[1 + np.argmax(spec[1:])])

@@ -13,7 +13,7 @@ limits), which are named so that a surprise (another robot's servos, a factory r
 """
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 from dynamixel_sdk import COMM_SUCCESS
@@ -127,8 +127,7 @@ def survey_bus(config: BusConfig, *, attempts: int = 3) -> BusSurvey:
             registers = {} if model is None else {
                 f.name: v for f in SURVEYED if (v := bus.read_register(joint.servo_id, f)) is not None}
             survey = ServoSurvey(joint.joint, joint.servo_id, model, registers)
-            servos.append(ServoSurvey(joint.joint, joint.servo_id, model, registers,
-                                      tuple(_mismatches(survey, config, bus.name(joint.servo_id)))))
+            servos.append(replace(survey, mismatches=tuple(_mismatches(survey, config, bus.name(joint.servo_id)))))
     finally:
         bus.close()
     configured = set(config.servo_ids)

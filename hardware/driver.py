@@ -304,15 +304,8 @@ class DynamixelBus:
         EEPROM fields are read first and written only when they differ (EEPROM wears out).
         """
         raw = value & ((1 << (8 * field.size)) - 1)
-        if field.eeprom:
-            reader = {1: self._packet.read1ByteTxRx, 2: self._packet.read2ByteTxRx,
-                      4: self._packet.read4ByteTxRx}[field.size]
-            for _ in range(self.connect_retries):
-                current, result, _ = self._guard(reader, self._port, servo_id, field.address)
-                if result == COMM_SUCCESS:
-                    if current == raw:
-                        return
-                    break
+        if field.eeprom and self.read_register(servo_id, field) == value:
+            return
         writer = {1: self._packet.write1ByteTxRx, 2: self._packet.write2ByteTxRx,
                   4: self._packet.write4ByteTxRx}[field.size]
         for _ in range(self.connect_retries):

@@ -21,13 +21,20 @@ Kinds:
   or answers any more, the port stays open, and each servo's Bus Watchdog (98) is all that
   stops it.
 * ``unplug``: the pty is closed, as when the USB cable of the adapter is pulled.
+
+The host can fail too: :func:`full_disk_after` makes the run file's disk fill up.
 """
 from __future__ import annotations
 
+import contextlib
+import errno
 import math
+import os
 import re
 from dataclasses import dataclass
 from enum import Enum
+from pathlib import Path
+from typing import Any, Iterator
 
 from cobra_model.errors import InputError
 from hardware.control_table import HardwareError
@@ -115,3 +122,45 @@ def parse_fault(spec: str) -> Fault:
         raise InputError(f"fault {spec!r}: {match['at']!r} is not a number of seconds") from None
     return Fault(kind, at_s=at_s, servo_id=int(match["id"]) if match["id"] else None,
                  count=int(match["count"]) if match["count"] else 1)
+
+
+class _FullDisk:
+    """A file whose disk fills up at its ``writes``-th write: that write puts 7 bytes down,
+    then fails with ENOSPC, as write(2) does."""
+
+    def __init__(self, fh: Any, writes: int) -> None:
+        self.fh, self.left = fh, writes
+
+    def write(self, data: Any) -> int:
+        self.left -= 1
+        if self.left > 0:
+            return self.fh.write(data)
+        self.fh.write(bytes(data[:7]))
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.fh, name)
+
+
+@contextlib.contextmanager
+def full_disk_after(samples: int) -> Iterator[None]:
+    """Meanwhile every :class:`~hardware.runwriter.IncrementalRunWriter` has room for its header
+    and ``samples`` lines (the next write fails part-way with ENOSPC), and cannot replace its
+    sidecar once it has written the first one: a disk filling up during a recording."""
+    from hardware.runwriter import IncrementalRunWriter
+
+    opened, sidecar = IncrementalRunWriter._open, IncrementalRunWriter._write_sidecar
+    written: set[Path] = set()
+
+    def full_sidecar(self: IncrementalRunWriter, meta: Any) -> None:
+        if self.path in written:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        written.add(self.path)
+        sidecar(self, meta)
+
+    IncrementalRunWriter._open = lambda self, mode: _FullDisk(opened(self, mode), samples + 2)
+    IncrementalRunWriter._write_sidecar = full_sidecar
+    try:
+        yield
+    finally:
+        IncrementalRunWriter._open, IncrementalRunWriter._write_sidecar = opened, sidecar

@@ -27,9 +27,10 @@ from typing import Mapping, Sequence
 import numpy as np
 
 from cobra_model.errors import InputError
+from cobra_model.gait import dominant_frequency_hz
 from cobra_model.model import CobraModel
 from cobra_model.runs import interpolate_rows
-from sysid.optitrack import MotiveTake, gait_period_s, resolve_mapping
+from sysid.optitrack import MotiveTake, resolve_mapping
 
 #: Coarse search step [s].
 COARSE_STEP_S = 0.005
@@ -118,7 +119,7 @@ def estimate_clock_offset(take: MotiveTake, joints: tuple[np.ndarray, np.ndarray
     if not others:
         raise InputError(f"{take.source}: only the head is tracked, so the take's clock cannot be matched to "
                          f"{joint_log}'s from the robot's shape; give --time-offset")
-    period = gait_period_s(t, q)
+    period = 1.0 / dominant_frequency_hz(t, q)
     lo = take.times[0] - t[0] - (t[-1] - t[0]) + period
     hi = take.times[-1] - t[0] - period
     if min(take.times[-1] - take.times[0], t[-1] - t[0]) < period:
@@ -138,7 +139,7 @@ def estimate_clock_offset(take: MotiveTake, joints: tuple[np.ndarray, np.ndarray
         return float(np.sum(r * r)), n
 
     coarse = np.arange(lo, hi + COARSE_STEP_S, COARSE_STEP_S)
-    sse = np.array([misfit(d)[0] for d in coarse])
+    sse, used = np.array([misfit(d) for d in coarse]).T
     if not np.isfinite(sse).any():
         raise InputError(f"{take.source} and {joint_log}: no shift leaves one gait cycle ({period:.2f} s) of "
                          f"tracked samples to compare (tracking lost too often?)")
@@ -160,4 +161,4 @@ def estimate_clock_offset(take: MotiveTake, joints: tuple[np.ndarray, np.ndarray
     inside = (t + best >= take.times[0]) & (t + best <= take.times[-1])
     return ClockOffset(best, std, tuple(others), float(t[inside][-1] - t[inside][0]), n,
                        float(np.sqrt(sse_best / (n * len(others)))), float(coarse[j]),
-                       float(np.sqrt(sse[j] / (misfit(coarse[j])[1] * len(others)))))
+                       float(np.sqrt(sse[j] / (used[j] * len(others)))))

@@ -28,6 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from cobra_model.errors import InputError
+from cobra_model.gait import dominant_frequency_hz
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run, interpolate_rows
@@ -94,7 +95,8 @@ class RunTarget:
         head = interpolate_rows(t0 + ts, run.t, run.head_pos[:, :2], max_gap_samples=2)
         q = interpolate_rows(t0 + ts, run.t, run.q)
         gait = run.meta.get("gait") if isinstance(run.meta, dict) else None
-        freq = float(gait["frequency_hz"]) if isinstance(gait, dict) and "frequency_hz" in gait else _dominant_freq(run)
+        freq = float(gait["frequency_hz"]) if isinstance(gait, dict) and "frequency_hz" in gait \
+            else dominant_frequency_hz(run.t, run.q_ref)
         start = StartObservation.of_run(run)
         current = None if run.current is None else interpolate_rows(t0 + ts, run.t, run.current, max_gap_samples=2)
         return cls(str(run.source or "run"), t0, t1 - t0, start, start.pose(model, start.q_reading), ticks, ts, head,
@@ -104,15 +106,6 @@ class RunTarget:
         """Length of this run's part of the residual vector (:func:`residual_vector`)."""
         S, n_j = len(self.t_samples), self.q.shape[1]
         return S * (2 + n_j + (n_j if weights.use_current else 0))
-
-
-def _dominant_freq(run: Run) -> float:
-    """Commanded frequency [Hz] from the spectrum of the commands (when the sidecar has no gait)."""
-    y = run.q_ref - run.q_ref.mean(axis=0)
-    dt = float(np.median(np.diff(run.t)))
-    spec = np.abs(np.fft.rfft(y, axis=0)).sum(axis=1)
-    freqs = np.fft.rfftfreq(len(y), dt)
-    return float(freqs[1 + np.argmax(spec[1:])])
 
 
 def cpg_fit(t: np.ndarray, y: np.ndarray, freq_hz: float) -> tuple[np.ndarray, np.ndarray]:

@@ -391,15 +391,6 @@ def resolve_mapping(take: MotiveTake, mapping: Mapping[str, str] | None = None) 
     return resolved
 
 
-def gait_period_s(t: np.ndarray, q: np.ndarray) -> float:
-    """The dominant period [s] of the joint angles (their summed spectrum)."""
-    y = q - q.mean(axis=0)
-    dt = float(np.median(np.diff(t)))
-    spec = np.abs(np.fft.rfft(y, axis=0)).sum(axis=1)
-    freqs = np.fft.rfftfreq(len(y), dt)
-    return 1.0 / float(freqs[1 + np.argmax(spec[1:])])
-
-
 def merge_take_and_joints(
     take: MotiveTake,
     joints: tuple[np.ndarray, np.ndarray, np.ndarray | None],

@@ -2,15 +2,16 @@
 and a disk that fills up under the run writer."""
 from __future__ import annotations
 
-import errno
-import os
+import contextlib
 import sys
 from pathlib import Path
+from typing import Iterator
 
 import pytest
 
 from cobra_model.model import CobraModel
-from hardware.runwriter import IncrementalRunWriter
+from hardware import faults
+from hardware.emulator import EmulatorProcess
 
 
 @pytest.fixture(scope="session")
@@ -35,42 +36,18 @@ def erd_dir() -> Path:
     return erd_robots_dir()
 
 
-class FullDisk:
-    """A file whose disk fills up at its ``writes``-th write: that write puts 7 bytes down,
-    then fails with ENOSPC, as write(2) does."""
-
-    def __init__(self, fh, writes: int) -> None:
-        self.fh, self.left = fh, writes
-
-    def write(self, data) -> int:
-        self.left -= 1
-        if self.left > 0:
-            return self.fh.write(data)
-        self.fh.write(bytes(data[:7]))
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-
-    def __getattr__(self, name: str):
-        return getattr(self.fh, name)
+@pytest.fixture
+def emulators() -> Iterator[list[EmulatorProcess]]:
+    """Emulated buses a test starts (append them); each is stopped at the end."""
+    started: list[EmulatorProcess] = []
+    yield started
+    for emu in started:
+        emu.stop()
 
 
 @pytest.fixture
-def full_disk_after(monkeypatch):
-    """``full_disk_after(samples)``: from then on every IncrementalRunWriter gets room for its
-    header and ``samples`` lines, and cannot replace its sidecar once it has written the first."""
-    return lambda samples: _full_disk_after(samples, monkeypatch)
-
-
-def _full_disk_after(samples: int, monkeypatch) -> None:
-    monkeypatch.setattr(IncrementalRunWriter, "_open",
-                        lambda self, mode: FullDisk(self.path.open(mode, buffering=0), samples + 2))
-    written = set()
-    real = IncrementalRunWriter._write_sidecar
-
-    def sidecar(self, meta):
-        if self.path in written:
-            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
-        written.add(self.path)
-        real(self, meta)
-
-    monkeypatch.setattr(IncrementalRunWriter, "_write_sidecar", sidecar)
-
+def full_disk_after() -> Iterator:
+    """``full_disk_after(samples)``: from then on, to the test's end, the run writer's disk is
+    full after ``samples`` lines (:func:`hardware.faults.full_disk_after`)."""
+    with contextlib.ExitStack() as stack:
+        yield lambda samples: stack.enter_context(faults.full_disk_after(samples))

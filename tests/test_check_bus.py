@@ -4,7 +4,6 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Iterator
 
 import pytest
 
@@ -17,14 +16,6 @@ from hardware.faults import parse_fault
 from hardware.plant import KinematicPlant
 
 EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "bus.toml"
-
-
-@pytest.fixture
-def emulators() -> Iterator[list[EmulatorProcess]]:
-    started: list[EmulatorProcess] = []
-    yield started
-    for emu in started:
-        emu.stop()
 
 
 def start(emulators: list[EmulatorProcess], **kw) -> EmulatorProcess:

@@ -42,14 +42,6 @@ def start(faults: list[Fault] = (), **kw: Any) -> EmulatorProcess:
     return emu
 
 
-@pytest.fixture
-def emulators() -> Iterator[list[EmulatorProcess]]:
-    started: list[EmulatorProcess] = []
-    yield started
-    for emu in started:
-        emu.stop()
-
-
 def record(emu: EmulatorProcess, out: Path, *, duration_s: float = 1.2, gait: Any = GAIT,
            config: BusConfig | None = None) -> RecordResult:
     config = (config or BusConfig(port=emu.port)).with_port(emu.port)
