@@ -28,12 +28,14 @@ workflow judges by, head and joints, and the final head error alone), and the wa
 diagnosis.
 
 Usage: ``python benchmarks/diagnose_matrix.py [--engines sim,mujoco] [--effects ...]
-[--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--executor local|ray]``.
+[--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--executor local|ray]
+[--resume]``.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import json
 import sys
 import time
 from collections import Counter
@@ -120,6 +122,27 @@ def run_job(job: Job) -> dict[str, Any]:
             "wall_s": wall}
 
 
+def job_key(row_or_job: Any) -> tuple:
+    """What identifies a job (and the row it made): engine, effect, level, magnitude, seed."""
+    get = row_or_job.get if isinstance(row_or_job, dict) else lambda k: getattr(row_or_job, k)
+    return (get("engine"), get("effect"), get("level"), get("magnitude"), get("seed"))
+
+
+def finished_rows(path: Path, duration_s: float) -> dict[tuple, dict[str, Any]]:
+    """The rows of an earlier run's results file, by :func:`job_key` (``--resume``).
+
+    Raises:
+        SystemExit: naming the file if its runs had another duration (its rows are other jobs).
+    """
+    if not path.exists():
+        return {}
+    doc = json.loads(path.read_text())
+    if doc["meta"].get("duration_s") != duration_s:
+        raise SystemExit(f"{path}: its runs lasted {doc['meta'].get('duration_s')} s, this run's {duration_s} s: "
+                         "cannot resume from it")
+    return {job_key(r): r for r in doc["rows"]}
+
+
 def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: list[int], nulls: int,
              duration_s: float) -> list[Job]:
     """Every (engine, effect, magnitude, seed) job, then ``nulls`` nulls per engine (seeds cycled)."""
@@ -201,6 +224,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=3.0, help="run length [s] (default 3)")
     parser.add_argument("--executor", choices=("local", "ray"), default="local")
     parser.add_argument("--ray-address", default=None, help="join this Ray cluster (with --executor ray)")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the rows of benchmarks/results/diagnose_matrix.json that are jobs of this run "
+                             "and diagnose only the others (after an interrupted run)")
     args = parser.parse_args(argv)
     engines = [e for e in args.engines.split(",") if e]
     effects = [e for e in args.effects.split(",") if e]
@@ -217,14 +243,20 @@ def main(argv: list[str] | None = None) -> int:
     if set(seeds) & set(DEV_SEEDS):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration)
+    done = finished_rows(RESULTS_DIR / "diagnose_matrix.json", args.duration) if args.resume else {}
+    done = {k: r for k, r in done.items() if k in {job_key(j) for j in jobs}}
+    todo = [j for j in jobs if job_key(j) not in done]
     executor = make_executor(args.executor, workers=1, ray_address=args.ray_address)
-    print(f"{len(jobs)} diagnoses on {args.executor} ({executor.workers} worker(s))", file=sys.stderr, flush=True)
-    rows: list[dict[str, Any]] = []
+    print(f"{len(todo)} diagnoses on {args.executor} ({executor.workers} worker(s))"
+          + (f"; {len(done)} kept from the results file" if done else ""), file=sys.stderr, flush=True)
     t0 = time.perf_counter()
     batch = max(1, executor.workers)
-    for k in range(0, len(jobs), batch):
-        rows += executor.map(run_job, jobs[k:k + batch])
-        r = rows[-1]
+    rows: list[dict[str, Any]] = [done[job_key(j)] for j in jobs if job_key(j) in done]
+    for k in range(0, len(todo), batch):
+        for r in executor.map(run_job, todo[k:k + batch]):
+            done[job_key(r)] = r
+        rows = [done[job_key(j)] for j in jobs if job_key(j) in done]
+        r = done[job_key(todo[min(k + batch, len(todo)) - 1])]
         print(f"[{len(rows)}/{len(jobs)} {time.perf_counter() - t0:.0f} s] {r['engine']} {r['effect'] or 'null'} "
               f"seed {r['seed']}: named {r['named'] or 'none'}", file=sys.stderr, flush=True)
         meta = {"engines": engines, "effects": effects, "magnitudes": levels, "seeds": seeds,

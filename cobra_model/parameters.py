@@ -272,8 +272,29 @@ class ModelParameters:
         return np.array([p.min for p in free]), np.array([p.max for p in free])
 
     def to_unit(self) -> np.ndarray:
-        """Free parameters mapped to [0, 1] (log-scaled where flagged)."""
-        return np.array([float(p.to_unit_interval(p.value)) for p in self._params if not p.frozen])
+        """Free parameters mapped to [0, 1] (log-scaled where flagged), such that
+        ``from_unit(to_unit())`` is a valid set again.
+
+        A set on the relation's edge (``mu_s = mu_c``, where a fit may end) can come back from
+        the two transforms with ``mu_s`` one ulp below ``mu_c``; ``mu_s``'s coordinate is then
+        moved up by the fewest ulps that keep the relation.
+        """
+        free = [p for p in self._params if not p.frozen]
+        z = np.array([float(p.to_unit_interval(p.value)) for p in free])
+        names = [p.name for p in free]
+        if "mu_s" in names and ("mu_c" in names or "mu_c" in self._index):
+            k = names.index("mu_s")
+            for _ in range(16):
+                back = self._back_from_unit(free, z)
+                if back["mu_s"] >= back.get("mu_c", self.value("mu_c")):
+                    break
+                z[k] = np.nextafter(z[k], np.inf)
+        return z
+
+    @staticmethod
+    def _back_from_unit(free: list[Parameter], z: np.ndarray) -> dict[str, float]:
+        """The values :meth:`from_unit` gives the free parameters at ``z`` (unvalidated)."""
+        return {p.name: float(p.from_unit_interval(zi)) for p, zi in zip(free, np.clip(z, 0.0, 1.0))}
 
     def from_unit(self, x: np.ndarray) -> "ModelParameters":
         """Inverse of :meth:`to_unit`; ``x`` is clipped to [0, 1]."""

@@ -1,6 +1,9 @@
 """The discrepancy workflow: fit, localise, try candidate effects, name one, refit, show the gap.
 
-1. **Fit** the current model by least squares (:func:`sysid.lsq.fit_lsq`) on the training runs.
+1. **Fit** the current model by least squares (:func:`sysid.lsq.fit_lsq`) on the training runs;
+   if its head-path residual outweighs its joints', weight the head channel down for every later
+   fit and judgement (:func:`balanced_weights`: another engine's or the real ground leaves an
+   unexplained head drift that would drown a joint-side effect).
 2. **Localise** the disagreement of the fitted model on training and held-out runs
    (:func:`sysid.signature.localise`).
 3. **Try every candidate** of the :class:`sysid.effects.EffectLibrary`: add its parameter to the
@@ -51,7 +54,7 @@ from integrators.runs import rollout_like, simulate_like
 from integrators.simulator import Simulator
 from sysid.effects import Effect, EffectLibrary
 from sysid.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
-from sysid.objective import Objective
+from sysid.objective import Objective, Weights
 from sysid.report import HeldOut, gap_summary, head_text, pair_held_out
 from sysid.signature import Signature, localise
 
@@ -73,6 +76,9 @@ class DiagnoseConfig:
             (:func:`screening_start`).
         min_improvement: held-out cost reduction a named effect must bring (fraction).
         bic_threshold: dBIC below which the added parameter is worth its cost (-10: strong).
+        balance_channels: after the base fit, down-weight the head path if its unexplained
+            residual outweighs the joints' (:func:`balanced_weights`), for every later fit and
+            judgement.
     """
 
     max_effects: int = 2
@@ -83,6 +89,7 @@ class DiagnoseConfig:
     profile_runs: int = 3
     min_improvement: float = 0.2
     bic_threshold: float = -10.0
+    balance_channels: bool = True
 
 
 @dataclass(frozen=True)
@@ -167,10 +174,13 @@ class Diagnosis:
     seconds: float = 0.0
     verdict: str = ""
     structural: list[dict] = field(default_factory=list)
+    weights: Weights = field(default_factory=Weights)
 
     def to_json(self) -> dict:
         return {
             "effects": self.effects,
+            "channel_scales": {"head_scale_m": self.weights.head_scale_m,
+                               "joint_scale_rad": self.weights.joint_scale_rad},
             "structural": self.structural,
             "gap_before": self.gap_before,
             "gap_after": self.gap_after,
@@ -290,15 +300,15 @@ def _costs(objective: Objective, X: np.ndarray) -> np.ndarray:
 PROFILE_DAMPINGS: tuple[float, ...] = (1e-2, 1e-1, 1.0)
 
 
-def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: Sequence[Run]
-              ) -> tuple[np.ndarray, list[ModelParameters]]:
+def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: Sequence[Run],
+              weights: Weights = Weights()) -> tuple[np.ndarray, list[ModelParameters]]:
     """One damped Gauss-Newton step of the other free parameters of ``trial`` with ``name`` held
     at each of ``values`` (a profile): the best cost of each on ``runs`` and its parameters.
 
     Batched: the finite-difference Jacobians at every value are one evaluation and the steps
     at every value and damping (:data:`PROFILE_DAMPINGS`) another.
     """
-    objective = _capped(Objective(runs, trial))
+    objective = _capped(Objective(runs, trial, weights))
     free = list(trial.free_names)
     k = free.index(name)
     others = [i for i in range(len(free)) if i != k]
@@ -351,7 +361,7 @@ def unbent(effect: Effect, current: ModelParameters, before: ModelParameters) ->
 
 
 def screening_start(effect: Effect, current: ModelParameters, before: ModelParameters, runs: Sequence[Run],
-                    library: EffectLibrary) -> ModelParameters:
+                    library: EffectLibrary, weights: Weights = Weights()) -> ModelParameters:
     """Where a candidate's screening refit starts: the effect added to one of two bases.
 
     - ``current``, the fitted model, with the effect inactive or at the grid value of lowest
@@ -373,7 +383,7 @@ def screening_start(effect: Effect, current: ModelParameters, before: ModelParam
     name = effect.parameter.name
     base = unbent(effect, current, before)
     trial = library.transform(current, {effect.name: effect.parameter.value})
-    objective = _capped(Objective(runs, trial))
+    objective = _capped(Objective(runs, trial, weights))
     demands = ((torque_demand(current, objective.runs), torque_demand(base, objective.runs))
                if effect.acts_below_demand else (None, None))
     values = [effect.parameter.value, *start_grid(effect, demand_nm=demands[0])]
@@ -382,11 +392,11 @@ def screening_start(effect: Effect, current: ModelParameters, before: ModelParam
     best, best_cost = trial.with_values(**{name: values[k]}), costs[k]
     coarse = start_grid(effect, demand_nm=demands[1], coarse=True)
     unbent_trial = library.transform(base, {effect.name: coarse[0]})
-    raw = _costs(_capped(Objective(runs, unbent_trial)),
+    raw = _costs(_capped(Objective(runs, unbent_trial, weights)),
                  np.array([unbent_trial.with_values(**{name: v}).as_vector() for v in coarse]))
     distinct = [v for n, v in enumerate(coarse) if np.isfinite(raw[n]) and raw[n] not in set(raw[:n])]
     if distinct:
-        profiled, params = _profiles(unbent_trial, name, distinct, runs)
+        profiled, params = _profiles(unbent_trial, name, distinct, runs, weights)
         j = int(np.argmin(profiled))
         if profiled[j] < best_cost:
             best = params[j]
@@ -452,12 +462,44 @@ def _cost_or_inf(objective: Objective, x: np.ndarray) -> float:
 
 
 def _screen_refit(start: ModelParameters, fit_set: Sequence[Run], holdout: Sequence[Run],
-                  iterations: int) -> tuple[FitResult, np.ndarray]:
+                  iterations: int, weights: Weights) -> tuple[FitResult, np.ndarray]:
     """A screening refit: ``start``'s free parameters on the fit runs' first
     :data:`SCREEN_HORIZON_S` (no horizon continuation), and the refit's held-out cost per run
     (whole runs)."""
-    fit = fit_lsq(_capped(Objective(fit_set, start)), max_iterations=iterations, horizons_s=())
-    return fit, Objective(list(holdout), fit.params).run_costs(fit.params.as_vector())
+    fit = fit_lsq(_capped(Objective(fit_set, start, weights)), max_iterations=iterations, horizons_s=())
+    return fit, Objective(list(holdout), fit.params, weights).run_costs(fit.params.as_vector())
+
+
+def balanced_weights(objective: Objective, x: np.ndarray) -> Weights:
+    """The objective's weights with the head path down-weighted when its residual at ``x``
+    outweighs the joints': its scale raised until both channels (the head's x and y; the joint
+    angles) carry the same summed cost, but no further than the head's own RMS residual, where
+    each of its residuals has unit variance (feasible weighted least squares). Never up-weighted;
+    the joints' scale is left alone.
+
+    Why: the default scales (1 cm of head error weighs as 0.01 rad of joint error) are 10-20
+    times each sensor's noise, right while the model's structure is right. The head path
+    integrates every force on the body, above all the ground contact, the least certain
+    structure of any model of a real robot (or of another engine's runs): there a mismatch
+    drifts the head by decimetres that no parameter explains, its cost outweighs the joints' a
+    hundredfold, and an effect seen in the joints (a joint friction's few mrad) cannot change the
+    total enough to be judged. The joints are held to their commands by the servo loop: a large
+    joint residual is the evidence of a joint-side effect (a delay, an offset), and weighting it
+    down would let the head's structural error bias that effect's value. With runs that have no
+    head measurement the weights are unchanged.
+    """
+    w = objective.weights
+    r = objective.residuals(np.atleast_2d(x))[0]
+    gaps = objective.head_gaps()
+    blocks = objective.residual_blocks()
+    head = np.concatenate([b[:, :2].ravel() for b in blocks])
+    head = head[~gaps[head]]
+    joints = np.concatenate([b[:, 2:13].ravel() for b in blocks])
+    cost_h, cost_j = float(r[head] @ r[head]), float(r[joints] @ r[joints])
+    if head.size == 0 or cost_j == 0.0 or cost_h <= cost_j:
+        return w
+    rms = w.head_scale_m * np.sqrt(cost_h / head.size)
+    return replace(w, head_scale_m=float(max(w.head_scale_m, min(w.head_scale_m * np.sqrt(cost_h / cost_j), rms))))
 
 
 def _spread(runs: Sequence[Run], n: int) -> list[Run]:
@@ -498,6 +540,12 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     result.fits.append(base)
     current = base.params
     result.params_before = current
+    weights = Weights()
+    if config.balance_channels:
+        weights = balanced_weights(Objective(fit_set, current), current.as_vector())
+        progress(f"channel scales: head {100 * weights.head_scale_m:.1f} cm ~ joints "
+                 f"{1000 * weights.joint_scale_rad:.1f} mrad")
+    result.weights = weights
     sims_before = [simulate_like(r, params=current) for r in holdout]
     progress("localising the disagreement")
     train_pairs = [(r, simulate_like(r, params=current)) for r in fit_set]
@@ -508,9 +556,9 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         # the baseline every candidate is measured against: the current model refitted alone as
         # a candidate is (a fit that had not yet converged must not make every effect look useful)
         progress(f"round {round_ + 1}: refitting without a new effect")
-        null, hold_null = _screen_refit(current, fit_set, holdout, config.screen_iterations)
+        null, hold_null = _screen_refit(current, fit_set, holdout, config.screen_iterations, weights)
         n = null.residual_count
-        hold_current = Objective(list(holdout), current).run_costs(current.as_vector())
+        hold_current = Objective(list(holdout), current, weights).run_costs(current.as_vector())
         baseline = Baseline(2.0 * null.cost, hold_null).joined(Baseline(np.inf, hold_current))
         candidates: list[Candidate] = []
         for name in remaining:
@@ -518,9 +566,9 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             progress(f"round {round_ + 1}: trying {name}")
             # the effect's parameter and the current free ones refit together: the current fit
             # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
-            trial = screening_start(effect, current, start, profile_set, library)
+            trial = screening_start(effect, current, start, profile_set, library, weights)
             # from the fitted model no horizon continuation is needed: it already is in the basin
-            fit, hold1_runs = _screen_refit(trial, fit_set, holdout, config.screen_iterations)
+            fit, hold1_runs = _screen_refit(trial, fit_set, holdout, config.screen_iterations, weights)
             augmented = fit.params
             value = augmented.value(effect.parameter.name)
             candidates.append(Candidate(name, value, effect.parameter.unit,
@@ -533,7 +581,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             progress(f"round {round_ + 1}: checking {c.name}: refitting its model without it")
             p = library[c.name].parameter  # switched off (its inactive value) and frozen
             switched_off = c.params.with_values(**{p.name: p.value}).with_frozen([p.name])
-            alone, hold = _screen_refit(switched_off, fit_set, holdout, config.screen_iterations)
+            alone, hold = _screen_refit(switched_off, fit_set, holdout, config.screen_iterations, weights)
             return Baseline(2.0 * alone.cost, hold)
 
         best, candidates, proxies = choose(candidates, baseline, n, config, refit_without)
@@ -547,7 +595,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
         effect = library[best.name]
         # the candidate's refit on the runs' first seconds is already in the whole runs' basin
-        final = fit_lsq(Objective(fit_set, best.params), max_iterations=config.final_iterations, horizons_s=())
+        final = fit_lsq(Objective(fit_set, best.params, weights), max_iterations=config.final_iterations, horizons_s=())
         result.fits.append(final)
         current = final.params
         interval = next((r for r in final.report if r.name == effect.parameter.name), None)

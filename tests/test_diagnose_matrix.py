@@ -50,3 +50,17 @@ def test_the_heatmap_is_written_and_checks_its_shape(tmp_path: Path) -> None:
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     with pytest.raises(InputError, match="does not match 2 x 3 labels"):
         plot_confusion(np.zeros((2, 2)), ["a", "b"], ["a", "b", "c"], tmp_path / "bad.png")
+
+
+def test_resume_keeps_the_rows_of_this_runs_jobs_and_refuses_other_durations(tmp_path: Path) -> None:
+    import json
+    from benchmarks.diagnose_matrix import finished_rows, job_key
+    jobs = jobs_for(["sim"], ["backlash"], ["realistic"], [31, 32], 0, 3.0)
+    row = {**_row("sim", "backlash", "backlash"), "level": "realistic", "magnitude": jobs[0].magnitude, "seed": 31}
+    path = tmp_path / "diagnose_matrix.json"
+    path.write_text(json.dumps({"meta": {"duration_s": 3.0}, "rows": [row]}))
+    done = finished_rows(path, 3.0)
+    assert [j.seed for j in jobs if job_key(j) not in done] == [32]  # only seed 32 is left to diagnose
+    with pytest.raises(SystemExit, match="lasted 3.0 s, this run's 6.0 s"):
+        finished_rows(path, 6.0)
+    assert finished_rows(tmp_path / "missing.json", 3.0) == {}

@@ -3,8 +3,11 @@
 MuJoCo's twin (``sysid.mujoco_runs``: body-aligned capsule contacts, its own solver and soft
 contact, linearised saturating servos) with the robot's parameter error of
 ``tests/test_diagnose_names.py`` and one effect the library knows, expressed on MuJoCo's side:
-commands delayed by a 40 ms buffer, or every encoder reading 0.03 rad more than the joint angle
-(the servo loop holding its goal in readings). Two training runs (0.5, 0.65 Hz) and one
+commands delayed by a 40 ms buffer, every encoder reading 0.03 rad more than the joint angle
+(the servo loop holding its goal in readings), or a joint friction (``frictionloss``) of 0.3 N m.
+The friction's signature is a few mrad in the joints while MuJoCo's ground leaves centimetres in
+the head path: it is named only because the workflow down-weights the head channel to what the
+fitted model leaves unexplained in it (``sysid.diagnose.balanced_weights``). Two training runs (0.5, 0.65 Hz) and one
 held-out run (0.5 Hz) of 3 s, seed 21. The ground parameters are free as well: the fit must
 bend our ground toward MuJoCo's contact before an effect can be judged.
 """
@@ -25,14 +28,18 @@ pytest.importorskip("mujoco")
 
 ERROR = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 FREE = ["mu_c", "joint_damping", "motor_km", "mu_s", "k2", "friction_cone", "contact_rounding"]
-#: MuJoCo-side option -> (its value, the library effect, that effect's parameter).
-CASES = {"command_delay": (0.04, "actuator_delay", "actuator_delay"),
-         "encoder_offset": (0.03, "encoder_offset", "encoder_offset")}
+#: MuJoCo-side option -> (its value, the library effect, that effect's parameter, the largest
+#: fraction of the held-out joint RMSE left once it is named). A delay or an offset is most of the
+#: joints' residual (measured 30 -> 3.3 and 15 -> 4.4 mrad); a joint friction is only part of it,
+#: next to what MuJoCo's ground leaves in the joints (measured 5.0 -> 3.0 mrad).
+CASES = {"command_delay": (0.04, "actuator_delay", "actuator_delay", 0.5),
+         "encoder_offset": (0.03, "encoder_offset", "encoder_offset", 0.5),
+         "frictionloss": (0.3, "joint_coulomb_friction", "joint_coulomb", 0.75)}
 
 
 @pytest.mark.parametrize("option", list(CASES))
 def test_the_effect_added_in_mujoco_is_named_with_its_value(option):
-    value, effect, parameter = CASES[option]
+    value, effect, parameter, left = CASES[option]
     truth = ModelParameters.nominal().with_values(**ERROR)
     options = dataclasses.replace(twin_options(truth), **{option: value})
     model = CobraModel.load()
@@ -45,6 +52,7 @@ def test_the_effect_added_in_mujoco_is_named_with_its_value(option):
     assert [e["name"] for e in d.effects] == [effect], [c.to_json() for c in d.rounds[0][:3]]
     assert not d.structural
     low, high = d.effects[0]["params"][parameter]["ci95"]
-    assert low <= value <= high  # measured: delay [0.0387, 0.0404] s, offset [0.0265, 0.0301] rad
-    # the joints follow MuJoCo's far better once the effect is in (measured 30 -> 3.3 and 15 -> 4.4 mrad)
-    assert d.gap_after["mean"]["joint_rmse_rad"] < 0.5 * d.gap_before["mean"]["joint_rmse_rad"]
+    # measured: delay [0.0387, 0.0404] s, offset [0.0265, 0.0301] rad, friction [0.187, 0.342] N m
+    assert low <= value <= high
+    # the joints follow MuJoCo's better once the effect is in
+    assert d.gap_after["mean"]["joint_rmse_rad"] < left * d.gap_before["mean"]["joint_rmse_rad"]

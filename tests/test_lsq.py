@@ -94,3 +94,16 @@ def test_objective_on_ray_matches_local(noisy_runs):
     finally:
         ray.shutdown()
     assert np.allclose(on_ray, Objective(noisy_runs[:1], p).residuals(X), atol=1e-9)
+
+
+def test_a_set_on_the_edge_mu_s_equal_mu_c_survives_the_unit_round_trip():
+    """A fit that ends on mu_s = mu_c (the diagnosis matrix's MuJoCo frictionloss case near its
+    limit) used to come back from the unit-interval transforms with mu_s one ulp below mu_c, and
+    the next fit refused its own start. At 0.4477... the plain round trip loses that ulp; the
+    relation itself stays strict."""
+    mu = 0.44773651375733614
+    p = ModelParameters.nominal().with_values(mu_c=mu, mu_s=mu).with_frozen(free=["mu_c", "mu_s"])
+    back = p.from_unit(p.to_unit())
+    assert back.mu_s >= back.mu_c and back.mu_s == pytest.approx(mu, rel=1e-14)
+    with pytest.raises(InputError, match=r"'mu_s' = .* must be >= 'mu_c'"):
+        ModelParameters.nominal().with_values(mu_c=mu, mu_s=np.nextafter(mu, 0.0))
