@@ -132,15 +132,21 @@ def finished_rows(path: Path, duration_s: float) -> dict[tuple, dict[str, Any]]:
     """The rows of an earlier run's results file, by :func:`job_key` (``--resume``).
 
     Raises:
-        SystemExit: naming the file if its runs had another duration (its rows are other jobs).
+        SystemExit: naming the file if it is not a results file of this script, or if its runs
+            had another duration (its rows are other jobs).
     """
     if not path.exists():
         return {}
-    doc = json.loads(path.read_text())
-    if doc["meta"].get("duration_s") != duration_s:
-        raise SystemExit(f"{path}: its runs lasted {doc['meta'].get('duration_s')} s, this run's {duration_s} s: "
-                         "cannot resume from it")
-    return {job_key(r): r for r in doc["rows"]}
+    try:
+        doc = json.loads(path.read_text())
+        duration, rows = doc["meta"].get("duration_s"), doc["rows"]
+        keyed = {job_key(r): r for r in rows}
+    except (json.JSONDecodeError, KeyError, TypeError, AttributeError) as err:
+        raise SystemExit(f"{path}: not a diagnose_matrix results file ({err!r}); cannot resume from it "
+                         "(move it aside to start afresh)") from None
+    if duration != duration_s:
+        raise SystemExit(f"{path}: its runs lasted {duration} s, this run's {duration_s} s: cannot resume from it")
+    return keyed
 
 
 def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: list[int], nulls: int,

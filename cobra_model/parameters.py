@@ -83,12 +83,19 @@ class Parameter:
         return (np.asarray(value) - self.min) / (self.max - self.min)
 
     def from_unit_interval(self, x: float | np.ndarray) -> float | np.ndarray:
-        """Inverse of :meth:`to_unit_interval`."""
+        """Inverse of :meth:`to_unit_interval`; ``x`` in [0, 1] gives a value within the bounds
+        (``exp(log(max))`` can round one ulp above ``max``: the result is clipped to them)."""
         if self.log_scale:
             lo, hi = math.log(self.min), math.log(self.max)
-            return np.exp(lo + np.asarray(x) * (hi - lo))
-        return self.min + np.asarray(x) * (self.max - self.min)
+            value = np.exp(lo + np.asarray(x) * (hi - lo))
+        else:
+            value = self.min + np.asarray(x) * (self.max - self.min)
+        return np.clip(value, self.min, self.max)
 
+
+#: Relative round-off (of ``mu_c``) by which unit coordinates on the edge ``mu_s = mu_c`` may map
+#: to ``mu_s < mu_c``; :meth:`ModelParameters.from_unit` closes such a gap.
+EDGE_RTOL = 1e-12
 
 #: Nominal parameter set: the single table of what can be tuned.
 NOMINAL: tuple[Parameter, ...] = (
@@ -272,37 +279,27 @@ class ModelParameters:
         return np.array([p.min for p in free]), np.array([p.max for p in free])
 
     def to_unit(self) -> np.ndarray:
-        """Free parameters mapped to [0, 1] (log-scaled where flagged), such that
-        ``from_unit(to_unit())`` is a valid set again.
-
-        A set on the relation's edge (``mu_s = mu_c``, where a fit may end) can come back from
-        the two transforms with ``mu_s`` one ulp below ``mu_c``; ``mu_s``'s coordinate is then
-        moved up by the fewest ulps that keep the relation.
-        """
-        free = [p for p in self._params if not p.frozen]
-        z = np.array([float(p.to_unit_interval(p.value)) for p in free])
-        names = [p.name for p in free]
-        if "mu_s" in names and ("mu_c" in names or "mu_c" in self._index):
-            k = names.index("mu_s")
-            for _ in range(16):
-                back = self._back_from_unit(free, z)
-                if back["mu_s"] >= back.get("mu_c", self.value("mu_c")):
-                    break
-                z[k] = np.nextafter(z[k], np.inf)
-        return z
-
-    @staticmethod
-    def _back_from_unit(free: list[Parameter], z: np.ndarray) -> dict[str, float]:
-        """The values :meth:`from_unit` gives the free parameters at ``z`` (unvalidated)."""
-        return {p.name: float(p.from_unit_interval(zi)) for p, zi in zip(free, np.clip(z, 0.0, 1.0))}
+        """Free parameters mapped to [0, 1] (log-scaled where flagged); ``from_unit`` inverts it."""
+        return np.array([float(p.to_unit_interval(p.value)) for p in self._params if not p.frozen])
 
     def from_unit(self, x: np.ndarray) -> "ModelParameters":
-        """Inverse of :meth:`to_unit`; ``x`` is clipped to [0, 1]."""
+        """Inverse of :meth:`to_unit`; ``x`` is clipped to [0, 1].
+
+        A point on the relation's edge ``mu_s = mu_c`` (where a fit may end, and where a
+        constrained step lands) can come back from the transforms with ``mu_s`` a few ulps below
+        ``mu_c``; such a round-off gap (at most :data:`EDGE_RTOL` of ``mu_c``) is closed by
+        setting ``mu_s = mu_c``. A larger gap is an invalid set and raises.
+        """
         free = [p for p in self._params if not p.frozen]
         x = np.clip(np.asarray(x, dtype=float).ravel(), 0.0, 1.0)
         if x.shape != (len(free),):
             raise InputError(f"unit vector has {x.size} entries, expected {len(free)}")
-        return self.with_values(**{p.name: float(p.from_unit_interval(xi)) for p, xi in zip(free, x)})
+        values = {p.name: float(p.from_unit_interval(xi)) for p, xi in zip(free, x)}
+        if "mu_s" in values and "mu_c" in self._index:
+            mu_c = values.get("mu_c", self.value("mu_c"))
+            if mu_c - EDGE_RTOL * abs(mu_c) <= values["mu_s"] < mu_c:
+                values["mu_s"] = mu_c
+        return self.with_values(**values)
 
     # -- files ------------------------------------------------------------------------------
     def to_json_dict(self) -> dict[str, Any]:

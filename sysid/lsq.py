@@ -8,9 +8,11 @@ corrupted the heap here on one-variable problems, found by the discrepancy workf
 one-parameter refits; qpOASES's licence banner is kept off stdout):
 
     min_dz  0.5 dz^T (J^T J + lambda diag(J^T J)) dz + (J^T r)^T dz
-    s.t.    0 <= z + dz <= 1,   mu_s(z + dz) >= mu_c(z + dz)
+    s.t.    0 <= z + dz <= 1,   |dz_i| <= Delta,   mu_s(z + dz) >= mu_c(z + dz)
 
-in the parameters' unit coordinates ``z`` (log-scaled where a parameter spans decades).
+in the parameters' unit coordinates ``z`` (log-scaled where a parameter spans decades), with a
+trust region ``Delta`` per coordinate that adapts to how well the model predicts
+(:data:`TRUST_RADIUS`).
 
 Residual Jacobians are **parallel forward finite differences** (all ``d + 1`` parameter vectors
 of one Jacobian simulated in one batched rollout). The analytic route, Pinocchio's
@@ -68,6 +70,18 @@ DEFAULT_HORIZONS_S: tuple[float, ...] = (1.5, 3.0, 6.0)
 #: step made the cost worse at every damping and the fit stopped where it started; with 1 %
 #: three iterations cut the cost by 42 %.
 FD_STEP = 1e-2
+#: Initial trust region of a Levenberg-Marquardt step: at most this much of each parameter's
+#: unit range (a factor ``(max/min)^0.1`` for a log-scaled one, e.g. 1.7 for ``k2``). The
+#: Gauss-Newton model comes from a finite-difference Jacobian of contact rollouts, whose cost is
+#: piecewise smooth (contacts switch between sticking and slipping), so it is trusted only as
+#: far as it has predicted well: the region doubles (up to the whole range) after a step at its
+#: edge whose actual decrease is at least 3/4 of the predicted one, and halves after a step that
+#: achieved less than 1/4 of it (the usual trust-region rule). Without it the damping alone,
+#: lowered after every accepted step, let a step that happened to lower the cost cross into
+#: another basin: measured on MuJoCo-made runs (``tests/test_diagnose_mujoco.py``'s seed 21,
+#: encoder offset 0.03 rad), the base fit ran ``k2`` to its lower bound and the offset came out
+#: 0.014 rad.
+TRUST_RADIUS = 0.1
 
 
 class FitStatus(str, Enum):
@@ -211,7 +225,8 @@ def _friction_row(params: ModelParameters) -> tuple[np.ndarray, float] | None:
 
 
 def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: float | None = None,
-            horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, fd_step: float = FD_STEP, cost_tol: float = 1e-3,
+            horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, fd_step: float = FD_STEP, trust_radius: float = TRUST_RADIUS,
+            cost_tol: float = 1e-3,
             stage_cost_tol: float = 1e-2, step_tol: float = 1e-5,
             progress: Callable[[int, float, float], None] | None = None) -> FitResult:
     """Fit the objective's free parameters from its parameter set's current values.
@@ -237,6 +252,7 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
         horizons_s: the shorter horizons [s] of the continuation, increasing; () fits the
             whole runs only.
         fd_step: finite-difference step in unit coordinates.
+        trust_radius: the first steps' largest change of any unit coordinate (:data:`TRUST_RADIUS`).
         cost_tol, step_tol: convergence tolerances (relative cost decrease, unit step norm).
         stage_cost_tol: relative cost decrease that ends a shorter-horizon stage.
         progress: called with (iteration, cost, seconds) after each Jacobian; iterations count
@@ -248,6 +264,8 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     """
     if list(horizons_s) != sorted(horizons_s) or any(h <= 0 for h in horizons_s):
         raise InputError(f"horizons_s must be positive and increasing, got {list(horizons_s)}")
+    if not 0.0 < trust_radius <= 1.0:
+        raise InputError(f"trust_radius must be in (0, 1] (a share of each parameter's unit range), got {trust_radius}")
     t_start = time.perf_counter()
     longest = max(float(r.t[-1] - r.t[0]) for r in objective.runs)
     params0 = objective.params
@@ -255,8 +273,8 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     r0 = objective.residuals(params0.as_vector()[None])[0]
     log: list[IterationLog] = []
     done = objective.evaluations
-    settings = dict(fd_step=fd_step, cost_tol=cost_tol, step_tol=step_tol, progress=progress, t_start=t_start,
-                    budget_seconds=budget_seconds)
+    settings = dict(fd_step=fd_step, trust_radius=trust_radius, cost_tol=cost_tol, step_tol=step_tol, progress=progress,
+                    t_start=t_start, budget_seconds=budget_seconds)
     for h in horizons_s:
         if h >= longest or (budget_seconds is not None and time.perf_counter() - t_start > budget_seconds):
             break
@@ -305,7 +323,7 @@ class _LMState:
 
 
 def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations: int, budget_seconds: float | None,
-                         fd_step: float, cost_tol: float, step_tol: float,
+                         fd_step: float, trust_radius: float, cost_tol: float, step_tol: float,
                          progress: Callable[[int, float, float], None] | None, first_iteration: int,
                          evaluations_before: int, t_start: float) -> _LMState:
     """Box-constrained LM from unit coordinates ``z`` on one objective (see the module docstring)."""
@@ -325,6 +343,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
     cost = 0.5 * float(r @ r)
     log: list[IterationLog] = []
     damping = 1e-3
+    radius = trust_radius
     status = FitStatus.MAX_ITERATIONS
     with _quiet_stdout():
         qp = ca.conic("lm_step", "qpoases", {"h": ca.Sparsity.dense(d, d),
@@ -344,7 +363,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
         accepted, rejected = False, False
         while damping < 1e8 and not over_budget():
             Hd = H + damping * np.diag(np.maximum(np.diag(H), 1e-12))
-            args = {"h": Hd, "g": g, "lbx": -z, "ubx": 1.0 - z}
+            args = {"h": Hd, "g": g, "lbx": np.maximum(-z, -radius), "ubx": np.minimum(1.0 - z, radius)}
             if friction:
                 a, b = friction
                 args.update(a=a[None, :], lba=b - a @ z, uba=np.inf)
@@ -366,6 +385,11 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
                                     time.perf_counter() - t_start, horizon))
             if ok:
                 rel = (cost - c_try) / max(cost, 1e-300)
+                agreement = (cost - c_try) / predicted
+                if agreement < 0.25:
+                    radius = max(radius / 2.0, fd_step)
+                elif agreement > 0.75 and np.max(np.abs(dz)) >= 0.99 * radius:
+                    radius = min(2.0 * radius, 1.0)
                 z, r, cost = z_try, r_try, c_try
                 damping = max(damping / 3.0, 1e-9)
                 accepted = True

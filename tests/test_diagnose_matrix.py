@@ -64,3 +64,6 @@ def test_resume_keeps_the_rows_of_this_runs_jobs_and_refuses_other_durations(tmp
     with pytest.raises(SystemExit, match="lasted 3.0 s, this run's 6.0 s"):
         finished_rows(path, 6.0)
     assert finished_rows(tmp_path / "missing.json", 3.0) == {}
+    path.write_text('{"meta": {"duration_s": 3.0}, "rows": [')
+    with pytest.raises(SystemExit, match="diagnose_matrix.json: not a diagnose_matrix results file"):
+        finished_rows(path, 3.0)

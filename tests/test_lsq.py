@@ -107,3 +107,22 @@ def test_a_set_on_the_edge_mu_s_equal_mu_c_survives_the_unit_round_trip():
     assert back.mu_s >= back.mu_c and back.mu_s == pytest.approx(mu, rel=1e-14)
     with pytest.raises(InputError, match=r"'mu_s' = .* must be >= 'mu_c'"):
         ModelParameters.nominal().with_values(mu_c=mu, mu_s=np.nextafter(mu, 0.0))
+
+
+def test_unit_points_a_constrained_step_lands_on_are_valid_sets():
+    """The LM's steps end on bounds and on mu_s = mu_c; each such unit point must map to a valid
+    set, or the step is rejected as if it raised the cost and the fit stalls before the bound
+    (it did: k1 = exp(log 5e4) = 50000.00000000001 N/m was 'outside its bounds' 12 times in one
+    MuJoCo base fit, and mu_s landed ulps below mu_c 6 times)."""
+    p = ModelParameters.nominal().with_frozen(free=["k1", "mu_c", "mu_s"])
+    k1 = p["k1"]
+    assert p.from_unit(np.array([1.0, 0.3, 0.3])).k1 == k1.max  # log-scaled, at its upper bound
+    assert p.from_unit(np.array([0.0, 0.3, 0.3])).k1 == k1.min
+    pc, ps = p["mu_c"], p["mu_s"]
+    for mu in np.linspace(max(pc.min, ps.min), min(pc.max, ps.max), 37):
+        zc, zs = pc.to_unit_interval(mu), ps.to_unit_interval(mu)
+        for dz in (0.0, -np.spacing(zs), -4 * np.spacing(zs)):  # on the edge, and round-off below it
+            back = p.from_unit(np.array([0.5, zc, zs + dz]))
+            assert back.mu_s >= back.mu_c and back.mu_s == pytest.approx(mu, rel=1e-12)
+    with pytest.raises(InputError, match=r"'mu_s' = .* must be >= 'mu_c'"):  # a real violation still raises
+        p.from_unit(np.array([0.5, pc.to_unit_interval(0.3), ps.to_unit_interval(0.29)]))

@@ -40,6 +40,23 @@ def test_a_headline_row_is_rendered_from_its_results_file(tmp_path, monkeypatch)
     assert "| 2 of 2 | all |" in table and "`sim_speed.json` missing" in table
 
 
+def test_a_malformed_results_file_or_missing_markers_get_one_line_naming_the_file(tmp_path, monkeypatch, capsys):
+    (tmp_path / "fault_matrix.json").write_text('{"rows": [')
+    monkeypatch.setattr(headline, "RESULTS", tmp_path)
+    assert headline.main(["--check"]) == 2
+    assert "fault_matrix.json: not valid JSON" in capsys.readouterr().err
+    (tmp_path / "fault_matrix.json").write_text('{"rows": []}')
+    assert headline.main(["--check"]) == 2
+    assert "fault_matrix.json: missing or malformed entry" in capsys.readouterr().err
+    (tmp_path / "fault_matrix.json").unlink()
+    readme = tmp_path / "README.md"
+    readme.write_text("no table here\n")
+    monkeypatch.setattr(headline, "README", readme)
+    assert headline.main([]) == 2
+    assert "README.md: expected the markers" in capsys.readouterr().err
+    assert readme.read_text() == "no table here\n"  # nothing written
+
+
 @pytest.mark.slow
 def test_the_readme_api_example_runs(capsys):
     """The README's API block, executed as written (from the repository root)."""
