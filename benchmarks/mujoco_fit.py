@@ -46,7 +46,8 @@ from cobra_model import CobraModel, ModelParameters
 from cobra_model.runs import Run
 from integrators.mujoco_twin import TwinOptions
 from integrators.runs import simulate_like
-from sysid.dataset import ENCODER_COUNTS, RunPlan
+from cobra_model.servo import PULSES_PER_REV
+from sysid.dataset import RunPlan
 from sysid.lsq import fit_lsq
 from sysid.metrics import compare_runs
 from sysid.mujoco_runs import describe, record_mujoco, twin_options
@@ -63,7 +64,7 @@ EVAL_SEEDS = (101, 102, 103)
 HEADINGS_RAD = (0.3, 2.0)
 HOLDOUT_TURN_RAD = 1.0
 #: Joint-angle noise floor [rad]: the RMS of the encoders' rounding error.
-JOINT_FLOOR_RAD = 2 * np.pi / ENCODER_COUNTS / np.sqrt(12)
+JOINT_FLOOR_RAD = 2 * np.pi / PULSES_PER_REV / np.sqrt(12)
 HEAD_BOUND_M = 0.05
 JOINT_BOUND_FACTOR = 1.5
 
@@ -116,7 +117,7 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
         after = compare_runs(run, simulate_like(run, params=fit.params)).to_json_dict()
         joint = after["joint_rmse_rad"]["mean"]
         rows.append({
-            "config": config, "seed": seed, "heading_rad": heading, "gait_hz": run.meta["gait"]["frequency_hz"],
+            "config": config, "seed": seed, "heading_rad": heading, "gait_hz": run.gait_frequency_hz,
             "head_final_m_nominal": before["head_final_error_m"], "head_final_m_fitted": after["head_final_error_m"],
             "joint_rmse_rad_nominal": before["joint_rmse_rad"]["mean"], "joint_rmse_rad_fitted": joint,
             "joint_rmse_over_floor": joint / JOINT_FLOOR_RAD,

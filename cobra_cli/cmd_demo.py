@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         wall = time.perf_counter() - t0
         report = compare_runs(measured, simulated)
         gap = report.to_json_dict()
-        f = measured.meta.get("gait", {}).get("frequency_hz", float("nan"))
+        f = measured.gait_frequency_hz
         paths += [(f"measured {f} Hz", measured), (f"nominal model {f} Hz", simulated)]
         finals[f"{f} Hz"] = {"nominal model": gap["head_final_error_m"]}
         reports.append((f, measured, simulated, report))

@@ -7,7 +7,7 @@ import json
 import numpy as np
 
 from cobra_cli.common import load_params
-from cobra_model import design
+from cobra_model import servo
 from cobra_model.model import CobraModel
 
 
@@ -40,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
         iq = model.nq - model.n_joints + k - 1
         print(f"    {name:9s} {kind:5s} range +-{np.rad2deg(lim.upperPositionLimit[iq]):.0f} deg, "
               f"effort {lim.effortLimit[iv]:.2f} N m, velocity {lim.velocityLimit[iv]:.3f} rad/s")
-    print(f"  servo: XH540-W270, {design.SERVO_GEAR_RATIO}:1, {design.SUPPLY_VOLTAGE_V} V supply")
+    print(f"  servo: XH540-W270, {servo.SERVO_GEAR_RATIO}:1, {servo.SUPPLY_VOLTAGE_V} V supply")
     print("  parameters:")
     print(f"    {'name':22s} {'value':>11s} {'unit':10s} {'min':>10s} {'max':>10s}  frozen  meaning")
     for prm in params:

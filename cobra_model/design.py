@@ -22,16 +22,14 @@ import math
 from dataclasses import dataclass
 from pathlib import Path
 
+from cobra_model.servo import (SERVO_GEAR_RATIO, SERVO_MASS_KG, SERVO_NO_LOAD_RPM, SERVO_NO_LOAD_SPEED_RAD_S,
+                               SERVO_STALL_TORQUE_NM)
+from cobra_model.shipped import shipped_path
+
 NUM_MODULES = 12
 NUM_JOINTS = 11
 
-# --- Servo: ROBOTIS XH540-W270 (datasheet values at 12 V) ---------------------------------
-SERVO_MASS_KG = 0.165            # datasheet
-SERVO_GEAR_RATIO = 272.5         # datasheet
-SERVO_STALL_TORQUE_NM = 9.9      # datasheet, at 12 V
-SERVO_NO_LOAD_RPM = 39.0         # datasheet, at 12 V
-SUPPLY_VOLTAGE_V = 12.0          # datasheet operating point
-SERVO_NO_LOAD_SPEED_RAD_S = SERVO_NO_LOAD_RPM * 2.0 * math.pi / 60.0
+# The servo (ROBOTIS XH540-W270) and its datasheet values: cobra_model.servo.
 
 # --- Modules (estimates) ---------------------------------------------------------------------
 MODULE_PITCH_M = 0.13            # estimate: joint-to-joint distance ("about 0.13 m long")
@@ -147,7 +145,8 @@ def render_urdf() -> str:
     return "".join(parts)
 
 
-DEFAULT_URDF_PATH = Path(__file__).resolve().parent.parent / "urdf" / "cobra.urdf"
+#: ``urdf/cobra.urdf``, as installed (package data ``cobra_model.urdf``).
+DEFAULT_URDF_PATH = shipped_path("cobra_model.urdf", "cobra.urdf")
 
 
 def main(argv: list[str] | None = None) -> None:

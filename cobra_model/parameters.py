@@ -26,17 +26,17 @@ from typing import Any, Iterable, Iterator, Mapping
 
 import numpy as np
 
-from cobra_model import design
+from cobra_model import design, servo
 from cobra_model.errors import InputError
 
 PARAMS_FORMAT = "cobra-params/1"
 
 #: r * Km at the joint [N m/A] = V / no-load speed (datasheet derivation, see module docstring).
-JOINT_TORQUE_CONSTANT_NM_A = design.SUPPLY_VOLTAGE_V / design.SERVO_NO_LOAD_SPEED_RAD_S
+JOINT_TORQUE_CONSTANT_NM_A = servo.SUPPLY_VOLTAGE_V / servo.SERVO_NO_LOAD_SPEED_RAD_S
 #: Motor torque constant at the motor shaft [N m/A] (datasheet derivation).
-NOMINAL_MOTOR_KM = JOINT_TORQUE_CONSTANT_NM_A / design.SERVO_GEAR_RATIO
+NOMINAL_MOTOR_KM = JOINT_TORQUE_CONSTANT_NM_A / servo.SERVO_GEAR_RATIO
 #: Winding resistance [Ohm] from the stall point (datasheet derivation); not tuned.
-WINDING_RESISTANCE_OHM = JOINT_TORQUE_CONSTANT_NM_A * design.SUPPLY_VOLTAGE_V / design.SERVO_STALL_TORQUE_NM
+WINDING_RESISTANCE_OHM = JOINT_TORQUE_CONSTANT_NM_A * servo.SUPPLY_VOLTAGE_V / servo.SERVO_STALL_TORQUE_NM
 
 
 @dataclass(frozen=True)

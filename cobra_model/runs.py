@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from cobra_model.errors import InputError
+from cobra_model.gait import dominant_frequency_hz
 
 #: The run format this module reads and writes (the sidecar's ``"format"`` value).
 FORMAT = "cobra-run/1"
@@ -266,6 +267,15 @@ class Run:
     def duration(self) -> float:
         """``t[-1] - t[0]`` [s]."""
         return float(self.t[-1] - self.t[0])
+
+    @property
+    def gait_frequency_hz(self) -> float:
+        """The gait frequency [Hz]: the sidecar's ``gait.frequency_hz`` when it names one, else
+        the peak of the commands' spectrum (:func:`cobra_model.gait.dominant_frequency_hz`)."""
+        gait = self.meta.get("gait")
+        if isinstance(gait, Mapping) and isinstance(gait.get("frequency_hz"), (int, float)):
+            return float(gait["frequency_hz"])
+        return dominant_frequency_hz(self.t, self.q_ref)
 
     @property
     def dt_median(self) -> float:

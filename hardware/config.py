@@ -1,7 +1,7 @@
 """Bus configuration: a typed, validated description of COBRA's servo chain.
 
 A configuration file (TOML, or YAML when PyYAML is installed) has three parts; see
-``examples/bus.toml`` for a complete one::
+``examples/bus.toml`` for a complete one (installed with the package: :data:`EXAMPLE_CONFIG`)::
 
     [bus]                       # the serial link and the control loop
     port = "/dev/ttyUSB0"       # required
@@ -44,9 +44,15 @@ import numpy as np
 
 from cobra_model.design import NUM_JOINTS
 from cobra_model.errors import InputError
+from cobra_model.servo import POSITION_CENTER_PULSE, PWM_FULL_SCALE, RAD_PER_PULSE
+from cobra_model.shipped import shipped_path
 from hardware import control_table as ct
 from hardware.control_table import BAUD_RATE_CODES, OperatingMode
-from hardware.units import POSITION_CENTER_PULSE, RAD_PER_PULSE, joint_to_servo_rad, rad_to_pulses
+from hardware.units import joint_to_servo_rad, rad_to_pulses
+
+#: ``examples/bus.toml``, as installed (package data ``hardware.examples``): a complete
+#: configuration of COBRA's chain to copy and edit.
+EXAMPLE_CONFIG = shipped_path("hardware.examples", "bus.toml")
 
 #: Operating modes a configuration may ask for (goal positions are streamed).
 OPERATING_MODE_NAMES: dict[str, OperatingMode] = {
@@ -86,7 +92,7 @@ class ServoSettings:
     position_d_gain: int = 0
     profile_velocity: int = 0
     profile_acceleration: int = 0
-    pwm_limit: int = 885
+    pwm_limit: int = PWM_FULL_SCALE
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from enum import IntEnum, IntFlag
 
+from cobra_model.servo import GAIN_REGISTER_MAX, PWM_FULL_SCALE
 from hardware.units import to_signed
 
 #: Model number the XH540-W270 answers a ping with. ROBOTIS's model list (the SDK's
@@ -120,7 +121,7 @@ MOVING_THRESHOLD = Field("Moving Threshold", 24, 4, True, 10, valid=(0, 1023))
 TEMPERATURE_LIMIT = Field("Temperature Limit", 31, 1, True, 80, valid=(0, 100))
 MAX_VOLTAGE_LIMIT = Field("Max Voltage Limit", 32, 2, True, 160, valid=(95, 160))
 MIN_VOLTAGE_LIMIT = Field("Min Voltage Limit", 34, 2, True, 95, valid=(95, 160))
-PWM_LIMIT = Field("PWM Limit", 36, 2, True, 885, valid=(0, 885))
+PWM_LIMIT = Field("PWM Limit", 36, 2, True, PWM_FULL_SCALE, valid=(0, PWM_FULL_SCALE))
 CURRENT_LIMIT = Field("Current Limit", 38, 2, True, 2047, valid=(0, 2047))
 VELOCITY_LIMIT = Field("Velocity Limit", 44, 4, True, 128, valid=(0, 1023))
 MAX_POSITION_LIMIT = Field("Max Position Limit", 48, 4, True, 4095, valid=(0, 4095))
@@ -131,18 +132,18 @@ LED = Field("LED", 65, 1, True, 0, valid=(0, 1))
 STATUS_RETURN_LEVEL = Field("Status Return Level", 68, 1, True, 2, valid=(0, 2))
 REGISTERED_INSTRUCTION = Field("Registered Instruction", 69, 1, False, 0)
 HARDWARE_ERROR_STATUS = Field("Hardware Error Status", 70, 1, False, 0)
-VELOCITY_I_GAIN = Field("Velocity I Gain", 76, 2, True, 1920, valid=(0, 16383))
-VELOCITY_P_GAIN = Field("Velocity P Gain", 78, 2, True, 100, valid=(0, 16383))
-POSITION_D_GAIN = Field("Position D Gain", 80, 2, True, 0, valid=(0, 16383))
-POSITION_I_GAIN = Field("Position I Gain", 82, 2, True, 0, valid=(0, 16383))
-POSITION_P_GAIN = Field("Position P Gain", 84, 2, True, 800, valid=(0, 16383))
-FEEDFORWARD_2ND_GAIN = Field("Feedforward 2nd Gain", 88, 2, True, 0, valid=(0, 16383))
-FEEDFORWARD_1ST_GAIN = Field("Feedforward 1st Gain", 90, 2, True, 0, valid=(0, 16383))
+VELOCITY_I_GAIN = Field("Velocity I Gain", 76, 2, True, 1920, valid=(0, GAIN_REGISTER_MAX))
+VELOCITY_P_GAIN = Field("Velocity P Gain", 78, 2, True, 100, valid=(0, GAIN_REGISTER_MAX))
+POSITION_D_GAIN = Field("Position D Gain", 80, 2, True, 0, valid=(0, GAIN_REGISTER_MAX))
+POSITION_I_GAIN = Field("Position I Gain", 82, 2, True, 0, valid=(0, GAIN_REGISTER_MAX))
+POSITION_P_GAIN = Field("Position P Gain", 84, 2, True, 800, valid=(0, GAIN_REGISTER_MAX))
+FEEDFORWARD_2ND_GAIN = Field("Feedforward 2nd Gain", 88, 2, True, 0, valid=(0, GAIN_REGISTER_MAX))
+FEEDFORWARD_1ST_GAIN = Field("Feedforward 1st Gain", 90, 2, True, 0, valid=(0, GAIN_REGISTER_MAX))
 BUS_WATCHDOG = Field("Bus Watchdog", 98, 1, True, 0, signed=True, valid=(0, 127))
 #: Bus Watchdog (98) unit [s]; the register reads -1 once the watchdog has stopped the servo.
 BUS_WATCHDOG_UNIT_S = 0.020
 BUS_WATCHDOG_TRIPPED = -1
-GOAL_PWM = Field("Goal PWM", 100, 2, True, 885, signed=True, valid=(-885, 885))
+GOAL_PWM = Field("Goal PWM", 100, 2, True, PWM_FULL_SCALE, signed=True, valid=(-PWM_FULL_SCALE, PWM_FULL_SCALE))
 GOAL_CURRENT = Field("Goal Current", 102, 2, True, 2047, signed=True, valid=(-2047, 2047))
 GOAL_VELOCITY = Field("Goal Velocity", 104, 4, True, 0, signed=True, valid=(-1023, 1023))
 PROFILE_ACCELERATION = Field("Profile Acceleration", 108, 4, True, 0, valid=(0, 32767))

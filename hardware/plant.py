@@ -15,7 +15,8 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from cobra_model.design import NUM_JOINTS, SERVO_NO_LOAD_SPEED_RAD_S
+from cobra_model.design import NUM_JOINTS
+from cobra_model.servo import SERVO_NO_LOAD_SPEED_RAD_S
 
 if TYPE_CHECKING:
     from integrators import Simulator

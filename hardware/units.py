@@ -19,10 +19,8 @@ import math
 
 import numpy as np
 
-POSITION_CENTER_PULSE = 2048
-PULSES_PER_REV = 4096
-#: Position resolution [rad/pulse] (0.088 deg/pulse).
-RAD_PER_PULSE = 2.0 * math.pi / PULSES_PER_REV
+from cobra_model.servo import POSITION_CENTER_PULSE, RAD_PER_PULSE
+
 #: Velocity resolution [rad/s per unit] (0.229 rpm/unit).
 RAD_S_PER_VELOCITY_UNIT = 0.229 * 2.0 * math.pi / 60.0
 #: Current resolution [A per unit] (2.69 mA/unit).

@@ -17,6 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
+from cobra_model.servo import PULSES_PER_REV, PWM_FULL_SCALE
+
 # Indices into the ground parameter array ``ground``.
 G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL, G_CONE, G_ROUND = range(10)
 N_GROUND = 10
@@ -272,12 +274,12 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
 def servo_duty(q_goal, q_meas, integ, prev_err, kp, ki, kd, pwm_limit, duty_out):
     """Dynamixel X position loop: PWM duty in [-1, 1] from the goal and measured angle.
 
-    Errors are in encoder pulses (4096 per turn); ``kp = P/128``, ``ki = I/65536``,
-    ``kd = D/16`` (e-manual gain conversions); the output in PWM units is clipped at
-    ``pwm_limit`` and scaled by 885 (= 100 % duty). ``integ`` and ``prev_err`` (pulses) are
-    updated in place once per control tick.
+    Errors are in encoder pulses (``PULSES_PER_REV`` per turn); ``kp = P/128``, ``ki = I/65536``,
+    ``kd = D/16`` (e-manual gain conversions, :mod:`cobra_model.servo`); the output in PWM units
+    is clipped at ``pwm_limit`` and scaled by ``PWM_FULL_SCALE`` (= 100 % duty). ``integ`` and
+    ``prev_err`` (pulses) are updated in place once per control tick.
     """
-    scale = 4096.0 / (2.0 * np.pi)
+    scale = PULSES_PER_REV / (2.0 * np.pi)
     for j in range(q_goal.shape[0]):
         e = (q_goal[j] - q_meas[j]) * scale
         integ[j] += e
@@ -287,7 +289,7 @@ def servo_duty(q_goal, q_meas, integ, prev_err, kp, ki, kd, pwm_limit, duty_out)
             u = pwm_limit
         elif u < -pwm_limit:
             u = -pwm_limit
-        duty_out[j] = u / 885.0
+        duty_out[j] = u / PWM_FULL_SCALE
 
 
 @njit(cache=True)

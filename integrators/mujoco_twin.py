@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from cobra_model.design import SERVO_GEAR_RATIO, SUPPLY_VOLTAGE_V
+from cobra_model.servo import (D_GAIN_DIVISOR, P_GAIN_DIVISOR, PULSES_PER_REV, PWM_FULL_SCALE, SERVO_GEAR_RATIO,
+                               SUPPLY_VOLTAGE_V)
 from cobra_model.errors import InputError
 from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters
 
@@ -146,7 +147,8 @@ class TwinOptions:
 def servo_stiffness_damping(params: ModelParameters, p_gain: int = 800) -> tuple[float, float]:
     """Linearised nominal servo: position stiffness [N m/rad] and back-EMF damping [N m s/rad]."""
     rkm = SERVO_GEAR_RATIO * params.motor_km
-    kp = p_gain / 128.0 * 4096.0 / (2 * np.pi) / 885.0 * SUPPLY_VOLTAGE_V * rkm / WINDING_RESISTANCE_OHM
+    kp = (p_gain / P_GAIN_DIVISOR * PULSES_PER_REV / (2 * np.pi) / PWM_FULL_SCALE * SUPPLY_VOLTAGE_V * rkm
+          / WINDING_RESISTANCE_OHM)
     kv = rkm * rkm / WINDING_RESISTANCE_OHM
     return kp, kv
 
@@ -160,7 +162,7 @@ def servo_error_limit(options: TwinOptions, p_gain: int = 800) -> float | None:
     """
     if options.servo == "linear":
         return None
-    return 885.0 * 128.0 / p_gain * 2.0 * np.pi / 4096.0
+    return PWM_FULL_SCALE * P_GAIN_DIVISOR / p_gain * 2.0 * np.pi / PULSES_PER_REV
 
 
 def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelParameters | None = None):

@@ -31,7 +31,8 @@ from typing import Callable
 import numpy as np
 import pinocchio as pin
 
-from cobra_model.design import SERVO_GEAR_RATIO
+from cobra_model import servo
+from cobra_model.servo import SERVO_GEAR_RATIO
 from cobra_model.model import RobotModel
 from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters
 from integrators import kernels as K
@@ -45,19 +46,20 @@ class SimulationDiverged(RuntimeError):
 
 @dataclass(frozen=True)
 class ServoGains:
-    """Dynamixel X position-loop registers (raw register values) and PWM limit (885 = 100 %)."""
+    """Dynamixel X position-loop registers (raw register values) and PWM limit
+    (``servo.PWM_FULL_SCALE`` = 100 %)."""
 
     p: int = 800
     i: int = 0
     d: int = 0
-    pwm_limit: int = 885
+    pwm_limit: int = servo.PWM_FULL_SCALE
 
     def __post_init__(self) -> None:
         for name in ("p", "i", "d"):
-            if not 0 <= getattr(self, name) <= 16383:
-                raise ValueError(f"servo gain {name} = {getattr(self, name)} outside 0..16383")
-        if not 0 <= self.pwm_limit <= 885:
-            raise ValueError(f"PWM limit {self.pwm_limit} outside 0..885")
+            if not 0 <= getattr(self, name) <= servo.GAIN_REGISTER_MAX:
+                raise ValueError(f"servo gain {name} = {getattr(self, name)} outside 0..{servo.GAIN_REGISTER_MAX}")
+        if not 0 <= self.pwm_limit <= servo.PWM_FULL_SCALE:
+            raise ValueError(f"PWM limit {self.pwm_limit} outside 0..{servo.PWM_FULL_SCALE}")
 
 
 @dataclass(frozen=True)
@@ -78,7 +80,7 @@ class SimSettings:
     dt: float = 1e-3
     control_dt: float = 1e-3
     gains: ServoGains = field(default_factory=ServoGains)
-    voltage: float = 12.0
+    voltage: float = servo.SUPPLY_VOLTAGE_V
     sgn_eps: float = 0.01
     joint_coulomb_eps: float = 0.05
     max_depth: float = 0.03
@@ -187,7 +189,8 @@ class Simulator:
         scal = np.zeros(K.N_SCAL)
         scal[K.S_DT], scal[K.S_VOLTAGE], scal[K.S_RESISTANCE] = s.dt, s.voltage, WINDING_RESISTANCE_OHM
         scal[K.S_MAX_DEPTH], scal[K.S_MAX_SPEED] = s.max_depth, s.max_speed
-        scal[K.S_KP], scal[K.S_KI], scal[K.S_KD], scal[K.S_PWM_LIMIT] = g.p / 128.0, g.i / 65536.0, g.d / 16.0, g.pwm_limit
+        scal[K.S_KP], scal[K.S_KI], scal[K.S_KD], scal[K.S_PWM_LIMIT] = (
+            g.p / servo.P_GAIN_DIVISOR, g.i / servo.I_GAIN_DIVISOR, g.d / servo.D_GAIN_DIVISOR, g.pwm_limit)
         self.scal = scal
         ch, f = self.model.chain, self.model.features
         self._chain_i = np.ascontiguousarray(np.column_stack([ch.parents, ch.qidx, ch.vidx]), dtype=np.int64)

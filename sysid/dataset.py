@@ -32,15 +32,17 @@ from cobra_model.gait import PAPER_FREQUENCIES_HZ, SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters, Parameter
 from cobra_model.runs import Run, interpolate_quaternions, interpolate_rows, read_run, write_run
+from cobra_model.servo import RAD_PER_PULSE
+from cobra_model.shipped import shipped_path
 from integrators.runs import TRACKED_BODIES
 from integrators.simulator import Simulator
 
-DATA_DIR = Path(__file__).resolve().parent.parent / "data" / "reference"
+#: ``data/reference``, as installed (package data ``sysid.reference``).
+DATA_DIR = shipped_path("sysid.reference")
 SEED = 20240521
 N_RUNS = 25
 JOINT_RATE_HZ = 50.0
 MOCAP_RATE_HZ = 120.0
-ENCODER_COUNTS = 4096
 MOCAP_NOISE_M = 0.5e-3
 MOCAP_ANGLE_NOISE_RAD = np.deg2rad(0.2)
 TIMING_JITTER_S = 0.5e-3
@@ -147,7 +149,7 @@ def measure(t: np.ndarray, q_pin: np.ndarray, q_joint_meas: np.ndarray, run_plan
     t_j[0] = 0.0
     t_j = np.round(t_j, 6)
     q_true = interpolate_rows(t_j, t, q_joint_meas)
-    count = 2 * np.pi / ENCODER_COUNTS
+    count = RAD_PER_PULSE
     q_meas = np.round(q_true / count) * count
     q_ref = gait.q_ref(t_j)
     # motion capture: 120 Hz, noise, dropouts, merged onto the joint log's times

@@ -45,7 +45,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from cobra_model.design import SERVO_GEAR_RATIO
+from cobra_model.servo import SERVO_GEAR_RATIO
 from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
@@ -508,7 +508,7 @@ def _spread(runs: Sequence[Run], n: int) -> list[Run]:
         return list(runs)
     by_f: dict[float, list[Run]] = {}
     for r in runs:
-        by_f.setdefault(float(r.meta.get("gait", {}).get("frequency_hz", 0.0)), []).append(r)
+        by_f.setdefault(r.gait_frequency_hz, []).append(r)
     out: list[Run] = []
     while len(out) < n:
         for lst in by_f.values():

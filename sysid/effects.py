@@ -28,7 +28,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 from typing import Iterable, Iterator, Mapping
 
-from cobra_model.design import SERVO_STALL_TORQUE_NM
+from cobra_model.servo import SERVO_STALL_TORQUE_NM
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
 

@@ -28,7 +28,6 @@ from typing import Sequence
 import numpy as np
 
 from cobra_model.errors import InputError
-from cobra_model.gait import dominant_frequency_hz
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run, interpolate_rows
@@ -94,9 +93,7 @@ class RunTarget:
         ts = np.minimum(np.arange(0.0, t1 - t0 + 1e-9, 1.0 / sample_hz), t1 - t0)
         head = interpolate_rows(t0 + ts, run.t, run.head_pos[:, :2], max_gap_samples=2)
         q = interpolate_rows(t0 + ts, run.t, run.q)
-        gait = run.meta.get("gait") if isinstance(run.meta, dict) else None
-        freq = float(gait["frequency_hz"]) if isinstance(gait, dict) and "frequency_hz" in gait \
-            else dominant_frequency_hz(run.t, run.q_ref)
+        freq = run.gait_frequency_hz
         start = StartObservation.of_run(run)
         current = None if run.current is None else interpolate_rows(t0 + ts, run.t, run.current, max_gap_samples=2)
         return cls(str(run.source or "run"), t0, t1 - t0, start, start.pose(model, start.q_reading), ticks, ts, head,

@@ -86,9 +86,8 @@ def pair_held_out(runs: Sequence[Run], before: Sequence[Run], after: Sequence[Ru
     """Held-out runs with their simulations before and after, compared with the measurement."""
     out = []
     for run, sim_b, sim_a in zip(runs, before, after):
-        gait = run.meta.get("gait", {}) if isinstance(run.meta, dict) else {}
         name = Path(str(run.source)).stem if run.source else "run"
-        out.append(HeldOut(name, float(gait.get("frequency_hz", float("nan"))), run, sim_b, sim_a,
+        out.append(HeldOut(name, run.gait_frequency_hz, run, sim_b, sim_a,
                            compare_runs(run, sim_b), compare_runs(run, sim_a)))
     return out
 

@@ -97,7 +97,7 @@ def localise(pairs: Sequence[tuple[Run, Run]], *, freq_hz: Sequence[float] | Non
         V.append(qd_ref)
         P.append(m.q_ref)
         L.append(np.abs(m.q_ref - s.q))
-        f = freq_hz[k] if freq_hz is not None else float(m.meta.get("gait", {}).get("frequency_hz", 0.5))
+        f = freq_hz[k] if freq_hz is not None else m.gait_frequency_hz
         phase.append(np.mod(f * (t - t[0]), 1.0))
         # time since the nearest reversal of the commanded velocity, per joint, in cycles
         near = np.zeros_like(e, dtype=bool)

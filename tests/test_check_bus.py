@@ -3,19 +3,16 @@ from __future__ import annotations
 
 import json
 import time
-from pathlib import Path
 
 import pytest
 
 from cobra_cli.main import main
 from hardware import control_table as ct
-from hardware.config import JointConfig, load_bus_config
+from hardware.config import EXAMPLE_CONFIG as EXAMPLE, JointConfig, load_bus_config
 from hardware.driver import DynamixelBus
 from hardware.emulator import EmulatorProcess
 from hardware.faults import parse_fault
 from hardware.plant import KinematicPlant
-
-EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "bus.toml"
 
 
 def start(emulators: list[EmulatorProcess], **kw) -> EmulatorProcess:

@@ -11,7 +11,7 @@ from cobra_model.errors import InputError
 from cobra_model.runs import interpolate_rows
 from integrators.runs import simulate_gait
 from sysid.clock_alignment import estimate_clock_offset
-from sysid.dataset import ENCODER_COUNTS
+from cobra_model.servo import PULSES_PER_REV
 from sysid.optitrack import MotiveTake, RigidBodyTrack
 
 OFFSET_S = 0.137
@@ -41,7 +41,7 @@ def recording(cobra):
                                                      "tail": track(run.bodies["tail"], None, "tail")},
                       FRAME_HZ, "Z", "Meters", {}, Path("take.csv"))
     t_log = np.arange(0.0, 8.0, 0.02)
-    step = 2 * np.pi / ENCODER_COUNTS
+    step = 2 * np.pi / PULSES_PER_REV
     q = interpolate_rows(t_log, run.t, run.q)
     return take, (t_log, np.round(q / step) * step, None)
 

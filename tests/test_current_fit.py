@@ -11,7 +11,7 @@ from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from hardware.units import current_units_to_amp
 from integrators.runs import simulate_gait
-from sysid.dataset import ENCODER_COUNTS
+from cobra_model.servo import PULSES_PER_REV
 from sysid.lsq import fit_lsq
 from sysid.objective import Objective, Weights
 
@@ -30,7 +30,7 @@ def runs(cobra):
     for f, heading in ((0.35, 0.0), (0.5, 1.0), (0.65, 2.0)):
         run = simulate_gait(SidewindingGait(f, ramp_s=0.5), 3.0, params=TRUTH, heading_rad=heading,
                             sample_rate_hz=50, model=cobra)
-        step = 2 * np.pi / ENCODER_COUNTS
+        step = 2 * np.pi / PULSES_PER_REV
         current = run.current + rng.normal(0, CURRENT_NOISE_A, run.current.shape)
         out.append(dataclasses.replace(run, q=np.round(run.q / step) * step,
                                        current=np.round(current / CURRENT_UNIT_A) * CURRENT_UNIT_A))

@@ -14,9 +14,9 @@ import pytest
 
 from cobra_cli import cmd_compare, cmd_emulate, cmd_record
 from cobra_model.runs import read_run
+from hardware.config import EXAMPLE_CONFIG as EXAMPLE
 
 REPO = Path(__file__).resolve().parent.parent
-EXAMPLE = REPO / "examples" / "bus.toml"
 
 
 def parse(module, argv: list[str]) -> argparse.Namespace:

@@ -11,10 +11,9 @@ from typing import Any
 import pytest
 
 from cobra_model.errors import InputError
-from hardware.config import BusConfig, bus_config_from_dict, load_bus_config
+from hardware.config import EXAMPLE_CONFIG as EXAMPLE, BusConfig, bus_config_from_dict, load_bus_config
 from hardware.control_table import OperatingMode
 
-EXAMPLE = Path(__file__).resolve().parent.parent / "examples" / "bus.toml"
 
 
 def example_dict() -> dict[str, Any]:

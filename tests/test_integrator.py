@@ -20,7 +20,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cobra_model import design
+from cobra_model import design, servo
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import RobotModel
 from cobra_model.parameters import ModelParameters
@@ -146,7 +146,7 @@ def test_actuator_step_respects_no_load_speed_and_saturates(cobra):
     assert half.step(st, goal).duty[5] == pytest.approx(442 / 885)
     tr = sim.rollout(st, goal[None, :], 2.0)
     qd = tr.v[:, 6 + 5]
-    w0 = design.SERVO_NO_LOAD_SPEED_RAD_S
+    w0 = servo.SERVO_NO_LOAD_SPEED_RAD_S
     assert np.abs(qd).max() <= 1.02 * w0
     t90 = tr.t[np.argmax(tr.q_meas[:, 5] >= 0.9)]
     assert 0.9 / w0 <= t90 <= 1.0                   # cannot beat the no-load speed; no sluggishness

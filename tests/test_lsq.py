@@ -126,3 +126,33 @@ def test_unit_points_a_constrained_step_lands_on_are_valid_sets():
             assert back.mu_s >= back.mu_c and back.mu_s == pytest.approx(mu, rel=1e-12)
     with pytest.raises(InputError, match=r"'mu_s' = .* must be >= 'mu_c'"):  # a real violation still raises
         p.from_unit(np.array([0.5, pc.to_unit_interval(0.3), ps.to_unit_interval(0.29)]))
+
+
+class _LinearObjective:
+    """An objective whose residuals are linear in the unit coordinates: its Gauss-Newton model
+    is exact, so the trust region should only ever grow."""
+
+    def __init__(self, params: ModelParameters, target: np.ndarray):
+        from types import SimpleNamespace
+        self.params, self.target, self.evaluations = params, target, 0
+        self.spec = SimpleNamespace(targets=[SimpleNamespace(duration=1.0)])
+
+    def residuals(self, X: np.ndarray) -> np.ndarray:
+        self.evaluations += len(X)
+        Z = np.array([self.params.update_from_vector(x).to_unit() for x in np.atleast_2d(X)])
+        return np.repeat(10.0 * (Z - self.target), 3, axis=1)
+
+
+@pytest.mark.parametrize("radius, first_steps", [(0.1, [0.1, 0.2]), (1.0, [0.36])])
+def test_the_trust_region_starts_small_and_grows_where_the_model_predicts_well(radius, first_steps):
+    from sysid.lsq import _levenberg_marquardt
+    params = ModelParameters.nominal().with_frozen(free=["k1"])
+    z0 = params.to_unit()
+    objective = _LinearObjective(params, z0 + 0.36)
+    lm = _levenberg_marquardt(objective, z0, max_iterations=8, budget_seconds=None, fd_step=1e-2,
+                              trust_radius=radius, cost_tol=1e-9, step_tol=1e-9, progress=None,
+                              first_iteration=0, evaluations_before=0, t_start=0.0)
+    steps = [e.step_norm for e in lm.log if e.accepted]
+    # from 0.1 of the range, doubled after each step the model predicted; whole range: one step
+    assert steps[:len(first_steps)] == pytest.approx(first_steps, rel=1e-3)
+    assert lm.z == pytest.approx(z0 + 0.36, abs=1e-3)

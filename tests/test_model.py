@@ -5,7 +5,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from cobra_model import design
+from cobra_model import design, servo
 from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from integrators import mujoco_twin
@@ -30,7 +30,7 @@ def test_structure(cobra):
         assert np.allclose(axis, [0, 1, 0] if k % 2 else [0, 0, 1]), name
     pm = cobra.pin_model
     assert np.allclose(pm.upperPositionLimit[7:], np.pi / 2)
-    assert np.allclose(pm.effortLimit[6:], design.SERVO_STALL_TORQUE_NM)
+    assert np.allclose(pm.effortLimit[6:], servo.SERVO_STALL_TORQUE_NM)
     assert np.allclose(pm.velocityLimit[6:], 39 * 2 * np.pi / 60)
     # straight snake lies along the head's -x axis, 24 contact points (two per module)
     q = cobra.rest_configuration()

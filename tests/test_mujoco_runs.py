@@ -11,7 +11,8 @@ from cobra_model.parameters import ModelParameters
 from cobra_model.runs import read_run, write_run
 from integrators import mujoco_twin
 from integrators.simulator import Simulator
-from sysid.dataset import DATA_DIR, ENCODER_COUNTS, JOINT_RATE_HZ, RunPlan, load_manifest, measure
+from cobra_model.servo import PULSES_PER_REV
+from sysid.dataset import DATA_DIR, JOINT_RATE_HZ, RunPlan, load_manifest, measure
 from sysid.mujoco_runs import record_mujoco, twin_options
 
 mujoco = pytest.importorskip("mujoco")
@@ -50,7 +51,7 @@ def test_run_is_measured_like_the_reference_dataset(baseline, tmp_path):
     assert sorted(run.bodies) == sorted(ref.bodies) == ["link_6", "tail"]
     assert set(run.meta) == set(ref.meta) and run.meta["source"] == "mujoco"
     assert run.meta["gait"]["frequency_hz"] == PLAN.freq_hz
-    count = 2 * np.pi / ENCODER_COUNTS
+    count = 2 * np.pi / PULSES_PER_REV
     assert np.allclose(run.q / count, np.round(run.q / count), atol=1e-6)   # quantised encoders
     assert 0.0 < np.isnan(run.head_pos[:, 0]).mean() < 0.1                  # mocap dropouts
     assert np.linalg.norm(run.head_pos[0, :2] - PLAN.head_xy) < 5e-3        # starts where planned

@@ -461,3 +461,16 @@ def test_resample_run_on_sample_times_keeps_extra() -> None:
     np.testing.assert_allclose(between.q, 0.5 * (run.q[:-1] + run.q[1:]))
     with pytest.raises(InputError, match="no extrapolation"):
         resample_run(run, run.t + 0.005)
+
+
+def test_the_gait_frequency_is_the_sidecars_else_the_commands_spectrum() -> None:
+    from cobra_model.gait import SidewindingGait
+    t = np.arange(0.0, 8.0, 0.02)
+    gait = SidewindingGait(0.65)
+    q_ref = gait.q_ref(t)
+    run = make_run(t.size, t=t, q_ref=q_ref, q=q_ref)
+    assert run.with_meta(gait=gait.to_json()).gait_frequency_hz == 0.65
+    # no gait in the sidecar (an imported recording), or one without a number: the spectrum's peak,
+    # within its resolution 1 / 8 s
+    for meta in ({}, {"gait": {"frequency_hz": "fast"}}):
+        assert abs(run.with_meta(**meta).gait_frequency_hz - 0.65) <= 1.0 / 8.0

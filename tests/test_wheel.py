@@ -1,0 +1,96 @@
+"""The package installs from a built wheel and runs from anywhere (issue 20 item 1).
+
+The wheel is built from a copy of the sources (nothing is written into the checkout) and installed
+without dependencies into a fresh virtual environment whose dependencies come from this one (a
+``.pth`` line: no network). From a directory outside the checkout, ``CobraModel.load()`` must find
+the URDF shipped in the wheel, ``cobra simulate`` must run, and ``cobra demo --skip-diagnose`` must
+read the shipped reference dataset; the example bus configuration must be in the wheel as well.
+"""
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+import sysconfig
+import venv
+import zipfile
+from pathlib import Path
+
+import pytest
+
+pytestmark = pytest.mark.slow
+ROOT = Path(__file__).resolve().parent.parent
+#: What a build needs: the metadata, the packages and the directories mapped into them as data.
+SOURCES = ("pyproject.toml", "README.md", "cobra_model", "integrators", "sysid", "hardware", "viz", "cobra_cli",
+           "urdf", "data", "examples")
+
+
+def _run(args: list[str], cwd: Path, env: dict[str, str] | None = None) -> str:
+    done = subprocess.run(args, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, f"{' '.join(map(str, args))} failed:\n{done.stdout[-3000:]}\n{done.stderr[-3000:]}"
+    return done.stdout
+
+
+@pytest.fixture(scope="module")
+def installed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    """(the fresh environment's bin directory, a work directory outside the checkout)."""
+    base = tmp_path_factory.mktemp("wheel")
+    src = base / "src"
+    src.mkdir()
+    ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "*.pyc")
+    for name in SOURCES:
+        path = ROOT / name
+        if path.is_dir():
+            shutil.copytree(path, src / name, ignore=ignore)
+        else:
+            shutil.copy2(path, src / name)
+    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "--no-index", "-q",
+          "-w", str(base / "dist"), str(src)], cwd=base)
+    wheel, = (base / "dist").glob("cobra_sysid-*.whl")
+    env_dir = base / "env"
+    venv.create(env_dir, with_pip=True)
+    bin_dir = env_dir / "bin"
+    site, = (env_dir / "lib").glob("python*/site-packages")
+    # the dependencies are this environment's: its site-packages as a path (read first: "00"),
+    # with its .pth hooks (Pinocchio's cmeel prefix) but not the editable install's finder, so
+    # the checkout is not importable from the fresh environment
+    deps = Path(sysconfig.get_paths()["purelib"])
+    (site / "00_cobra_deps.pth").write_text(f"{deps}\n")
+    for pth in deps.glob("*.pth"):
+        if not pth.name.startswith("__editable__") and not (site / pth.name).exists():
+            shutil.copy2(pth, site / pth.name)
+    _run([str(bin_dir / "python"), "-m", "pip", "install", "--no-deps", "--no-index", "-q", str(wheel)], cwd=base)
+    with zipfile.ZipFile(wheel) as zf:
+        names = set(zf.namelist())
+    assert {"cobra_model/urdf/cobra.urdf", "sysid/reference/manifest.json", "hardware/examples/bus.toml"} <= names
+    work = base / "elsewhere"
+    work.mkdir()
+    return bin_dir, work
+
+
+def _env() -> dict[str, str]:
+    return {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV")}
+
+
+def test_the_model_loads_from_the_wheel_not_the_checkout(installed):
+    bin_dir, work = installed
+    out = _run([str(bin_dir / "python"), "-c",
+                "from cobra_model import CobraModel; from cobra_model.design import DEFAULT_URDF_PATH; "
+                "from sysid.dataset import DATA_DIR; from hardware.config import EXAMPLE_CONFIG, load_bus_config; "
+                "m = CobraModel.load(); c = load_bus_config(EXAMPLE_CONFIG); "
+                "print(m.n_joints, len(c.servo_ids)); print(DEFAULT_URDF_PATH); print(DATA_DIR); print(EXAMPLE_CONFIG)"],
+               cwd=work, env=_env())
+    counts, *paths = out.split("\n")[:4]
+    assert counts == "11 11"
+    env_dir = bin_dir.parent.resolve()
+    for path in paths:
+        assert Path(path).resolve().is_relative_to(env_dir) and Path(path).exists(), (path, env_dir)
+
+
+def test_cobra_simulate_and_the_demo_run_from_the_wheel(installed):
+    bin_dir, work = installed
+    _run([str(bin_dir / "cobra"), "simulate", "--duration", "1", "--out", "sim.csv"], cwd=work, env=_env())
+    assert (work / "sim.csv").stat().st_size > 0 and (work / "sim.json").exists()
+    out = _run([str(bin_dir / "cobra"), "demo", "--skip-diagnose", "--out", "demo"], cwd=work, env=_env())
+    assert "held-out runs" in out and (work / "demo" / "head_paths.png").exists()
