@@ -34,7 +34,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/interval_coverage.py
 	$(PY) benchmarks/diagnose_accuracy.py
 	$(PY) benchmarks/mujoco_robustness.py
+	$(PY) benchmarks/mujoco_robustness.py --contact stiff
 	$(PY) benchmarks/diagnose_matrix.py
+	$(PY) benchmarks/contact_time_constant.py
 	$(PY) benchmarks/mujoco_fit.py
 	$(PY) benchmarks/headline.py  # the README's headline table from benchmarks/results/
 

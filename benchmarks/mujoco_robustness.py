@@ -30,8 +30,13 @@ our simulator differs from MuJoCo with no effect, both at the true parameters (m
 [rad] and final head distance [m] over the 9 runs). An effect smaller than that structural
 difference is hard to tell from it.
 
+``--contact stiff`` runs the same cases on MuJoCo's contact near its rigid limit (2 ms time
+constant instead of 20 ms, :func:`sysid.mujoco_runs.stiff_contact`), the configuration on which
+our ground can follow MuJoCo's (``benchmarks/contact_time_constant.py``); results then go to
+``mujoco_robustness_stiff.{json,md}``.
+
 Run: ``.venv/bin/python benchmarks/mujoco_robustness.py [--cases none,frictionloss] [--seeds 11]
-[--duration 6] [--effect-sizes]``.
+[--duration 6] [--contact stiff] [--effect-sizes]``.
 """
 from __future__ import annotations
 
@@ -54,7 +59,7 @@ from sysid.dataset import RunPlan
 from sysid.diagnose import DiagnoseConfig, diagnose
 from sysid.effects import EffectLibrary
 from sysid.metrics import compare_runs
-from sysid.mujoco_runs import record_mujoco, twin_options
+from sysid.mujoco_runs import record_mujoco, stiff_contact, twin_options
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
@@ -62,6 +67,8 @@ DEV_SEEDS = (3,)
 EVAL_SEEDS = (11,)
 #: Library parameter that stands for a MuJoCo option, and the option's value per case.
 COUNTERPARTS = {"frictionloss": ("joint_coulomb", 0.3), "forcerange": ("torque_limit", 2.0)}
+#: MuJoCo contacts the benchmark runs on (``--contact``).
+CONTACTS = ("default", "stiff")
 FREE = ["joint_damping", "motor_km", "k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", "friction_cone", "contact_rounding"]
 
 
@@ -116,8 +123,7 @@ def effect_sizes(chosen: list[str], cases: dict[str, tuple[str, dict[str, Any]]]
 
 def main(argv: list[str] | None = None) -> int:
     truth = ModelParameters.nominal().with_values(**TRUTH)
-    base = twin_options(truth)
-    cases = _cases(base)
+    cases = _cases(twin_options(truth))
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default=",".join(cases),
                         help=f"comma-separated subset of {', '.join(cases)} (default: all)")
@@ -125,6 +131,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", default=",".join(map(str, EVAL_SEEDS)),
                         help=f"data seeds (default {','.join(map(str, EVAL_SEEDS))}; {DEV_SEEDS} was used "
                              "while developing)")
+    parser.add_argument("--contact", choices=CONTACTS, default="default",
+                        help="MuJoCo's contact: its default soft one (solref 20 ms; results mujoco_robustness.*) "
+                             "or near rigid (2 ms, sysid.mujoco_runs.stiff_contact; mujoco_robustness_stiff.*)")
     parser.add_argument("--effect-sizes", action="store_true",
                         help="print each effect's size beside our simulator's difference from MuJoCo; no diagnosis")
     args = parser.parse_args(argv)
@@ -140,6 +149,8 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
     if any(x in DEV_SEEDS for x in seeds):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
+    base = twin_options(truth) if args.contact == "default" else stiff_contact(twin_options(truth))
+    name = "mujoco_robustness" if args.contact == "default" else "mujoco_robustness_stiff"
     model = CobraModel.load()
     if args.effect_sizes:
         effect_sizes(chosen, cases, base, truth, args.duration, model)
@@ -157,7 +168,7 @@ def main(argv: list[str] | None = None) -> int:
             t0 = time.perf_counter()
             d = diagnose(train, hold, params=start, config=DiagnoseConfig(max_effects=2), progress=progress)
             rows.append(row(case, label, seed, d, time.perf_counter() - t0))
-            write_results("mujoco_robustness", rows, meta(args, seeds, chosen, base), markdown(rows))
+            write_results(name, rows, meta(args, seeds, chosen, base), markdown(rows))
     print(markdown(rows))
     return 0
 
@@ -206,6 +217,7 @@ def markdown(rows: list[dict]) -> str:
 def meta(args: argparse.Namespace, seeds: list[int], chosen: list[str], base: TwinOptions) -> dict:
     """What was run."""
     return {"cases": chosen, "seeds": seeds, "dev_seeds": list(DEV_SEEDS), "duration_s": args.duration,
+            "contact": args.contact,
             "truth": TRUTH, "free": FREE, "twin": dataclasses.asdict(base),
             "library": list(EffectLibrary().names)}
 

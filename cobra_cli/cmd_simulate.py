@@ -12,7 +12,8 @@ from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.runs import read_run, write_run
 from integrators.runs import simulate_gait, simulate_like
-from integrators.simulator import SimSettings
+from integrators.simulator import SimSettings, Simulator
+from integrators.stability import check_steps
 from sysid.effects import EffectLibrary, parse_effects
 
 
@@ -52,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     if args.duration <= 0:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
     model = CobraModel.load()
+    check_steps(Simulator(model, params, settings).model, params, settings.dt, settings.control_dt, settings.gains.p)
     with progress_bar("simulating") as bar:
         if args.from_run:
             result = simulate_like(read_run(args.from_run), params=params, settings=settings, model=model,

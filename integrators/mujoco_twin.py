@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from cobra_model.servo import (D_GAIN_DIVISOR, P_GAIN_DIVISOR, PULSES_PER_REV, PWM_FULL_SCALE, SERVO_GEAR_RATIO,
-                               SUPPLY_VOLTAGE_V)
+from cobra_model.servo import P_GAIN_DIVISOR, PULSES_PER_REV, PWM_FULL_SCALE
 from cobra_model.errors import InputError
-from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters
+from cobra_model.parameters import ModelParameters
+from integrators.stability import servo_stiffness_damping
 
 
 def _mujoco():
@@ -142,15 +142,6 @@ class TwinOptions:
             raise InputError(f"TwinOptions.command_delay must be in [0, 1) s, got {self.command_delay}")
         if not abs(self.encoder_offset) < 0.5:
             raise InputError(f"TwinOptions.encoder_offset must be within +-0.5 rad, got {self.encoder_offset}")
-
-
-def servo_stiffness_damping(params: ModelParameters, p_gain: int = 800) -> tuple[float, float]:
-    """Linearised nominal servo: position stiffness [N m/rad] and back-EMF damping [N m s/rad]."""
-    rkm = SERVO_GEAR_RATIO * params.motor_km
-    kp = (p_gain / P_GAIN_DIVISOR * PULSES_PER_REV / (2 * np.pi) / PWM_FULL_SCALE * SUPPLY_VOLTAGE_V * rkm
-          / WINDING_RESISTANCE_OHM)
-    kv = rkm * rkm / WINDING_RESISTANCE_OHM
-    return kp, kv
 
 
 def servo_error_limit(options: TwinOptions, p_gain: int = 800) -> float | None:

@@ -9,9 +9,14 @@ One physics step of length ``dt``::
 
 All forces are evaluated explicitly at (q, v); the step is the symplectic Euler of the issue,
 with no implicit treatment. What bounds the stable step is the stiffest dissipative term, the
-regularised Coulomb friction ``s F_z / eps`` (see ``integrators.kernels.ground_forces``); with
-the default ``sgn_eps = 0.01 m/s`` and ``dt = 1 ms`` the step is stable over the parameter
-bounds of :mod:`cobra_model.parameters` (``tests/test_integrator.py`` checks the energy bounds).
+regularised Coulomb friction ``s F_z / eps`` (see ``integrators.kernels.ground_forces``),
+whose ``tanh`` caps it; the springs and dampers that do bound it are the ground's normal
+contact, the motor's back-EMF damping (every step) and the servo loop (every tick):
+:mod:`integrators.stability` gives the largest stable ``dt`` and ``control_dt`` for a model
+and parameter set. At ``dt = 1 ms`` the step is stable over the ground parameters' bounds, but
+not for the lightest transmission inertias: below about 2e-4 kg m^2 (at the nominal motor
+constant) the back-EMF damping needs a shorter step. ``cobra simulate`` checks its steps
+before the run; a divergence names the limits.
 
 The servo's position loop runs at ``control_dt`` (an integer multiple of ``dt``, checked): its
 PWM duty is held between ticks while the motor torque, which depends on the joint speed through
@@ -36,6 +41,7 @@ from cobra_model.servo import SERVO_GEAR_RATIO
 from cobra_model.model import RobotModel
 from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters
 from integrators import kernels as K
+from integrators import stability
 
 NO_TORQUE_LIMIT_NM = 1e9
 
@@ -245,12 +251,26 @@ class Simulator:
             )
         if status == K.STATUS_NONFINITE:
             bad = np.flatnonzero(~np.isfinite(v))
-            raise SimulationDiverged(f"at t = {t:.4f} s velocity became NaN/inf at coordinates {bad.tolist()}")
+            raise SimulationDiverged(f"at t = {t:.4f} s velocity became NaN/inf at coordinates {bad.tolist()} "
+                                     f"({self._coordinate_names(bad)}); {self._stable_steps()}")
         i = int(np.argmax(np.abs(v)))
         raise SimulationDiverged(
-            f"at t = {t:.4f} s velocity coordinate {i} reached {v[i]:.3g} (limit "
-            f"{self.settings.max_speed}): the step is unstable (try a smaller --dt)"
+            f"at t = {t:.4f} s velocity coordinate {i} ({self._coordinate_names([i])}) reached {v[i]:.3g} (limit "
+            f"{self.settings.max_speed}): the step is unstable; {self._stable_steps()}"
         )
+
+    def _coordinate_names(self, indices) -> str:
+        """Names of velocity coordinates: the root's linear/angular components or the joint names."""
+        nb = self.model.n_base
+        root = ("root vx", "root vy", "root vz", "root wx", "root wy", "root wz")
+        return ", ".join(root[i] if i < nb else self.model.joint_names[i - nb] for i in indices)
+
+    def _stable_steps(self) -> str:
+        """The largest stable steps for this model and parameters (:mod:`integrators.stability`)."""
+        lim = stability.step_limits(self.model, self.params, self.settings.gains.p)
+        return (f"with these parameters the largest stable dt is {lim.dt:.3g} s (set by {lim.dt_reason}) and "
+                f"control_dt {lim.control_dt:.3g} s; this run used {self.settings.dt:g} s and "
+                f"{self.settings.control_dt:g} s")
 
     def step(self, state: SimState, q_goal: np.ndarray, torque_on: np.ndarray | None = None) -> SimState:
         """Advance one physics step with servo goal angles ``q_goal`` (n_joints,) [rad].

@@ -18,10 +18,12 @@ added with ``dataclasses.replace`` on the options (``frictionloss``, ``armature`
 """
 from __future__ import annotations
 
+import dataclasses
 from typing import TYPE_CHECKING, Callable
 
 import numpy as np
 
+from cobra_model import design
 from cobra_model.errors import InputError
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
@@ -35,9 +37,9 @@ from sysid.dataset import RunPlan, measure
 if TYPE_CHECKING:
     import mujoco
 
-#: Physics steps between the samples handed to :func:`sysid.dataset.measure` (2 ms at 1 ms steps,
-#: as the reference dataset's simulator records).
-RECORD_EVERY = 2
+#: Interval [s] of the samples handed to :func:`sysid.dataset.measure` (as the reference
+#: dataset's simulator records), whatever the twin's time step.
+RECORD_DT_S = 0.002
 
 
 def twin_options(params: ModelParameters) -> TwinOptions:
@@ -58,8 +60,39 @@ def twin_options(params: ModelParameters) -> TwinOptions:
                        friction=(params.mu_c, 0.005, 0.0001), contact="capsule_pairs")
 
 
+def twin_counterpart(params: ModelParameters) -> ModelParameters:
+    """Our parameters at the values of :func:`twin_options` ``(params)``: the same actuator, sliding
+    friction ``mu_s = mu_c`` (MuJoCo has no Stribeck or viscous ground term: ``mu_v`` at its
+    lower bound), the diamond of the body-aligned pyramidal cone (``friction_cone`` at its upper
+    bound), capsule ends (``contact_rounding`` = the module radius) and the stiffest ground of
+    the parameter table (``k1``, ``k2`` at their upper bounds: MuJoCo's contact carries a
+    sustained load almost rigidly)."""
+    table = {p.name: p for p in params}
+    return params.with_values(mu_s=params.mu_c, mu_v=table["mu_v"].min, friction_cone=table["friction_cone"].max,
+                              contact_rounding=design.MODULE_RADIUS_M, k1=table["k1"].max, k2=table["k2"].max)
+
+
+#: MuJoCo's contact near its rigid limit: ``solref`` time constant [s] and the time step [s] that
+#: resolves it (MuJoCo needs the time constant to be at least two steps).
+STIFF_SOLREF_S, STIFF_TIMESTEP_S = 0.002, 0.00025
+
+
+def stiff_contact(options: TwinOptions) -> TwinOptions:
+    """``options`` with MuJoCo's contact near its rigid limit (:data:`STIFF_SOLREF_S`).
+
+    MuJoCo's default ``solref`` (0.02 s) is a soft constraint: the approach velocity of a contact
+    is removed over about 20 ms while a sustained load sinks it by only tens of micrometres (at
+    13 N, the median load in a sidewinding run, the median penetration is 0.03 mm, yet 1 % of
+    contacts are more than 1.4 mm deep). No contact force that grows with penetration and with
+    approach speed does both, and the robot's path moves with that time constant
+    (``benchmarks/contact_time_constant.py``); at 2 ms MuJoCo's contact is near rigid, as the
+    compliant ground of our simulator is at its identified stiffness.
+    """
+    return dataclasses.replace(options, solref=(STIFF_SOLREF_S, options.solref[1]), timestep=STIFF_TIMESTEP_S)
+
+
 def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarray], np.ndarray],
-            duration_s: float, record_every: int = RECORD_EVERY, error_limit_rad: float | None = None
+            duration_s: float, record_every: int = 2, error_limit_rad: float | None = None
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Run the MuJoCo twin from rest at ``q0`` with servo goals ``q_ref(t)``.
 
@@ -146,6 +179,7 @@ def record_mujoco(run_plan: RunPlan, options: TwinOptions, rng: np.random.Genera
                                      heading_rad=run_plan.heading_rad).q
     mj_model = mujoco_twin.build(model.urdf_path, options, params)
     t, q, q_joints = rollout(mj_model, q0, goals, run_plan.duration_s,
+                             record_every=max(1, round(RECORD_DT_S / options.timestep)),
                              error_limit_rad=mujoco_twin.servo_error_limit(options))
     return measure(t, q, q_joints + offset, run_plan, rng, model, source="mujoco",
                    note=f"MuJoCo twin run ({describe(options)})")

@@ -1,0 +1,96 @@
+"""The largest stable steps (integrators.stability) against what the step really does.
+
+The limits are exact for the linearised springs and dampers they describe. The real contact is
+one-sided (it lets go instead of pulling) and couples to the servo loop, which moved the
+threshold by up to about 10 % in the measurements below; the tests therefore check 20 % either
+side of each limit: below it the motion settles, above it the step feeds energy in.
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from cobra_cli.main import main as cobra_main
+from cobra_model.errors import InputError
+from cobra_model.parameters import ModelParameters
+from integrators.simulator import SimSettings, SimulationDiverged, Simulator
+from integrators.stability import check_steps, damped_spring_step_limit, step_limits
+
+
+def test_the_closed_form_limit_matches_the_step_on_one_spring_damper():
+    """Semi-implicit Euler on m x'' = -k x - c x': bounded just below the limit, growing just above."""
+    k, c, m = 5e4, 30.0, 0.2
+    h_max = damped_spring_step_limit(k, c, m)
+
+    def peak(h: float) -> float:
+        x, v = 1.0, 0.0
+        for _ in range(2000):
+            v += h * (-k * x - c * v) / m
+            x += h * v
+        return abs(x)
+
+    assert peak(0.99 * h_max) < 1.0
+    assert peak(1.01 * h_max) > 1e3
+
+
+@pytest.mark.parametrize("k1, k2", [(5e4, 1.0), (5e4, 10.0), (1e4, 1.0)])
+def test_a_drop_on_the_ground_settles_below_the_contact_limit_and_bounces_above(cobra, k1, k2):
+    params = ModelParameters.nominal().with_values(k1=k1, k2=k2)
+    limit = step_limits(Simulator(cobra, params).model, params)
+    assert "ground stiffness" in limit.dt_reason
+
+    def second_half_top(factor: float) -> float:
+        dt = factor * limit.dt
+        sim = Simulator(cobra, params, SimSettings(dt=dt, control_dt=dt))
+        rest = sim.rest_state()
+        start = sim.state(rest.q + np.r_[0.0, 0.0, 0.002, np.zeros(cobra.nq - 3)])  # 2 mm above rest
+        try:
+            tr = sim.rollout(start, np.zeros((1, cobra.n_joints)), 2.0)
+        except SimulationDiverged:
+            return np.inf
+        return float(tr.q[len(tr.t) // 2:, 2].max() - rest.q[2])
+
+    # measured (k1, k2 = 5e4, 1): the head rises at most 0 mm above rest in the second second at
+    # 0.8 x the limit, 150 mm at 1.2 x; (5e4, 10): 0 and 111 mm; (1e4, 1): 0 mm and diverged
+    assert second_half_top(0.8) < 0.5e-3
+    assert second_half_top(1.2) > 2e-3   # higher than it was dropped from: the step feeds energy in
+
+
+def test_the_motor_damping_limit_is_sharp_on_a_light_transmission(cobra):
+    """With the lightest transmission inertia, the back-EMF damping bounds dt (below 1 ms)."""
+    params = ModelParameters.nominal().with_values(armature=1e-4)
+    limit = step_limits(Simulator(cobra, params).model, params)
+    assert "back-EMF" in limit.dt_reason and limit.dt < 1e-3     # measured 0.92 ms
+
+    def runs(factor: float) -> bool:
+        dt = factor * limit.dt
+        sim = Simulator(cobra, params, SimSettings(dt=dt, control_dt=dt))
+        try:
+            sim.rollout(sim.rest_state(), np.zeros((1, cobra.n_joints)), 1.0)
+        except SimulationDiverged as exc:
+            assert "largest stable dt" in str(exc) and "joint" in str(exc)
+            return False
+        return True
+
+    assert runs(0.8)
+    assert not runs(1.2)     # measured: 0.98 x runs, 1.02 x diverges
+
+
+def test_check_steps_names_the_setting_and_the_largest_stable_value(cobra):
+    params = ModelParameters.nominal().with_values(k1=5e4, k2=200.0)
+    model = Simulator(cobra, params).model
+    limit = step_limits(model, params)
+    check_steps(model, params, 1e-3, 1e-3)
+    with pytest.raises(InputError, match=r"dt = 0.01 s is unstable .* largest stable dt is"):
+        check_steps(model, params, 0.01, 0.01)
+    with pytest.raises(InputError, match=r"control_dt = 0.05 s is unstable for the servo's position loop"):
+        check_steps(model, params, 1e-3, 0.05)
+    assert limit.dt < 0.01 and limit.control_dt < 0.05
+
+
+def test_cobra_simulate_refuses_an_unstable_dt_before_running(tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    code = cobra_main(["simulate", "--out", str(out), "--dt", "0.02", "--duration", "1"])
+    err = capsys.readouterr().err
+    assert code != 0 and "largest stable dt" in err and "--dt" in err
+    assert not out.exists()
