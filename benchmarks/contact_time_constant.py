@@ -2,7 +2,7 @@
 
 Issue 16's base fit is judged on MuJoCo-made runs. This benchmark separates what a fit can
 recover from what our model cannot express: the same gait, from the same rest pose, is run in
-MuJoCo's twin (:mod:`sysid.mujoco_runs`, no effect added) at contact time constants
+MuJoCo's twin (:mod:`sysid.mujoco_recording`, no effect added) at contact time constants
 (``solref[0]``) from 1 ms to 40 ms, and in our simulator at MuJoCo's own values (sliding friction
 ``mu_c = mu_s``, the diamond of the pyramidal cone ``friction_cone`` at its bound, capsule ends
 ``contact_rounding`` = the module radius, no viscous ground term, the stiffest ground of the
@@ -31,7 +31,7 @@ from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
 from integrators import mujoco_twin
 from integrators.simulator import Simulator
-from sysid.mujoco_runs import rollout, twin_counterpart, twin_options
+from sysid.mujoco_recording import rollout, twin_counterpart, twin_options
 
 #: The robot's parameter error (as in benchmarks/mujoco_fit.py).
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
@@ -41,7 +41,7 @@ MUJOCO_STEP_S = 0.00025
 HEADING_RAD = 0.3
 
 
-#: Changes of our ground parameters, one at a time, around :func:`sysid.mujoco_runs.twin_counterpart` (the
+#: Changes of our ground parameters, one at a time, around :func:`sysid.mujoco_recording.twin_counterpart` (the
 #: sliding friction moves both coefficients, static friction stays at least the sliding one).
 SWEEP: tuple[dict[str, float], ...] = (
     {"k1": 2e3}, {"k1": 1e4}, {"k2": 10.0}, {"k2": 50.0}, {"mu_c": 0.18, "mu_s": 0.18}, {"mu_c": 0.3, "mu_s": 0.3},
@@ -74,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
         gait = SidewindingGait(f)
         q0 = Simulator(model).rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=HEADING_RAD).q  # as record_mujoco
         start = q0[:2]
-        print(f"[{time.perf_counter() - t_all:5.0f} s] {f:g} Hz: our simulator and its sweep", file=sys.stderr, flush=True)
+        print(f"[{time.perf_counter() - t_all:5.0f} s] {f:g} Hz: our simulator and its sweep", file=sys.stderr,
+              flush=True)
         at_values = our_final_head(model, ours, gait, args.duration, q0)
         swept = [at_values] + [our_final_head(model, ours.with_values(**change), gait, args.duration, q0)
                                for change in SWEEP]
@@ -91,7 +92,8 @@ def main(argv: list[str] | None = None) -> int:
                          "distance_at_mujoco_values_m": float(np.linalg.norm(at_values - final)),
                          "closest_of_sweep_m": float(min(np.linalg.norm(s - final) for s in swept))})
     meta = {"duration_s": args.duration, "heading_rad": HEADING_RAD, "truth": TRUTH, "mujoco_step_s": MUJOCO_STEP_S,
-            "ours": {n: ours.value(n) for n in ("mu_c", "mu_s", "mu_v", "friction_cone", "contact_rounding", "k1", "k2")},
+            "ours": {n: ours.value(n)
+                     for n in ("mu_c", "mu_s", "mu_v", "friction_cone", "contact_rounding", "k1", "k2")},
             "sweep": list(SWEEP), "wall_s": time.perf_counter() - t_all}
     md = markdown(rows, meta)
     write_results("contact_time_constant", rows, meta, md)
@@ -105,7 +107,8 @@ def markdown(rows: list[dict], meta: dict) -> str:
     lines = ["# MuJoCo's contact time constant against our ground", "",
              f"Runs of {meta['duration_s']:g} s from rest, heading {meta['heading_rad']:g} rad, no noise. Ours at "
              f"MuJoCo's values: " + ", ".join(f"{k} {v:g}" for k, v in meta["ours"].items()) + ". "
-             "Sweep, one change at a time: " + "; ".join(", ".join(f"{k} {v:g}" for k, v in c.items()) for c in meta["sweep"]) + ".",
+             "Sweep, one change at a time: "
+             + "; ".join(", ".join(f"{k} {v:g}" for k, v in c.items()) for c in meta["sweep"]) + ".",
              "", "| gait [Hz] | MuJoCo time constant [ms] | MuJoCo head displacement (x, y) [m] | "
              "ours at MuJoCo's values: final head distance [m] | closest of our sweep [m] |",
              "|---:|---:|---|---:|---:|"]
@@ -127,7 +130,8 @@ def plot(rows: list[dict], path) -> None:
         sub = [r for r in rows if r["gait_hz"] == f]
         tc = [r["time_constant_s"] * 1e3 for r in sub]
         line, = ax.plot(tc, [r["distance_at_mujoco_values_m"] for r in sub], "o-", label=f"{f:g} Hz, MuJoCo's values")
-        ax.plot(tc, [r["closest_of_sweep_m"] for r in sub], "s--", color=line.get_color(), label=f"{f:g} Hz, closest of sweep")
+        ax.plot(tc, [r["closest_of_sweep_m"] for r in sub], "s--", color=line.get_color(),
+                label=f"{f:g} Hz, closest of sweep")
     ax.axhline(0.05, color="k", lw=0.8, ls=":", label="5 cm bound")
     ax.set_xscale("log")
     ax.set_xlabel("MuJoCo contact time constant solref[0] [ms]")

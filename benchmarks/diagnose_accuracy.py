@@ -25,7 +25,7 @@ from integrators.simulator import Simulator
 from sysid.dataset import DATA_DIR, RunPlan, load_manifest, record
 from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
 from sysid.effects import EffectLibrary
-from sysid.runsets import read_runs
+from sysid.splits import read_runs
 
 LIBRARY = EffectLibrary()
 #: Realistic magnitudes of each hidden effect (SI units of its main parameter, ``Effect.realistic``).
@@ -85,8 +85,8 @@ def accuracy(cases: list[str]) -> None:
             hidden = {} if case == "none" else {name: MAGNITUDES[name] for name in case.split("+")}
             d, wall = run_case(hidden, 2)
             mag = ", ".join(f"{v:g}" for v in hidden.values()) or "-"
-        named = ", ".join(e["name"] for e in d.effects) or "none"
-        b, a = d.gap_before["mean"]["head_final_error_m"], d.gap_after["mean"]["head_final_error_m"]
+        named = ", ".join(e.name for e in d.effects) or "none"
+        b, a = d.gap_before.head_final_error_m, d.gap_after.head_final_error_m
         print(f"| {case.replace('+', ' + ')} | {mag} | {named} | {b:.4f} -> {a:.4f} | {wall:.0f} |", flush=True)
 
 
@@ -96,9 +96,9 @@ def detection_row(name: str, factor: float) -> bool:
     value = scaled(name, factor)
     d, _ = run_case({name: value}, 1)
     first = d.rounds[0][0] if d.rounds and d.rounds[0] else None
-    named = bool(d.effects) and d.effects[0]["name"] == name
-    b, a = d.gap_before["mean"]["head_final_error_m"], d.gap_after["mean"]["head_final_error_m"]
-    print(f"| {name} | {value:.4g} | {'yes' if named else 'no (' + (d.effects[0]['name'] if d.effects else 'none') + ')'}"
+    named = bool(d.effects) and d.effects[0].name == name
+    b, a = d.gap_before.head_final_error_m, d.gap_after.head_final_error_m
+    print(f"| {name} | {value:.4g} | {'yes' if named else 'no (' + (d.effects[0].name if d.effects else 'none') + ')'}"
           f" | {100 * first.held_out_improvement:.0f} % ({first.name}) | {b:.4f} -> {a:.4f} |", flush=True)
     return named
 

@@ -7,7 +7,7 @@ nominal values (``ERROR``, free in the fit) and which has one library effect at 
 or none (a null). Two engines make the data:
 
 - ``sim``: this project's simulator with the effect added (every library effect);
-- ``mujoco``: the MuJoCo twin (``sysid.mujoco_runs``) with the effect expressed on MuJoCo's
+- ``mujoco``: the MuJoCo twin (``sysid.mujoco_recording``) with the effect expressed on MuJoCo's
   side (:data:`MUJOCO_OPTIONS`: joint ``frictionloss``, actuator ``forcerange``, commands
   delayed in a buffer, encoders offset, body-aligned anisotropic contact friction; the ground's
   parameters are then free too). Backlash and a payload mass are not expressed in the twin and
@@ -94,7 +94,7 @@ def make_runs(job: Job, model: CobraModel) -> list:
         hidden = truth if job.effect is None else library.transform(truth, {job.effect: job.magnitude}, frozen=True)
         sim = Simulator(model, hidden)
         return [record(sim, p, rng, model) for p in plans]
-    from sysid.mujoco_runs import record_mujoco, twin_options
+    from sysid.mujoco_recording import record_mujoco, twin_options
     options = twin_options(truth)
     if job.effect is not None:
         options = dataclasses.replace(options, **{MUJOCO_OPTIONS[job.effect]: job.magnitude})
@@ -110,15 +110,15 @@ def run_job(job: Job) -> dict[str, Any]:
     d = diagnose(runs[:2], runs[2:], params=ModelParameters.nominal().with_frozen(free=free),
                  config=DiagnoseConfig(max_effects=1))
     wall = time.perf_counter() - t0
-    named = d.effects[0]["name"] if d.effects else None
-    before, after = d.gap_before["mean"], d.gap_after["mean"]
+    named = d.effects[0].name if d.effects else None
+    before, after = d.gap_before, d.gap_after
     return {"engine": job.engine, "effect": job.effect, "level": job.level, "magnitude": job.magnitude,
-            "seed": job.seed, "named": named, "structural": [s["name"] for s in d.structural],
-            "head_final_before_m": before["head_final_error_m"], "head_final_after_m": after["head_final_error_m"],
-            "joint_rmse_before_rad": before["joint_rmse_rad"], "joint_rmse_after_rad": after["joint_rmse_rad"],
-            "gap_shrink": 1.0 - after["head_final_error_m"] / before["head_final_error_m"]
-            if before["head_final_error_m"] else float("nan"),
-            "held_out_cost_reduction": d.effects[0]["evidence"]["held_out_cost_reduction"] if d.effects else 0.0,
+            "seed": job.seed, "named": named, "structural": [s.name for s in d.structural],
+            "head_final_before_m": before.head_final_error_m, "head_final_after_m": after.head_final_error_m,
+            "joint_rmse_before_rad": before.joint_rmse_rad, "joint_rmse_after_rad": after.joint_rmse_rad,
+            "gap_shrink": 1.0 - after.head_final_error_m / before.head_final_error_m
+            if before.head_final_error_m else float("nan"),
+            "held_out_cost_reduction": d.effects[0].held_out_cost_reduction if d.effects else 0.0,
             "wall_s": wall}
 
 

@@ -47,7 +47,7 @@ from hardware.emulator import EmulatorProcess  # noqa: E402
 from hardware.faults import Fault, full_disk_after, parse_fault  # noqa: E402
 from hardware.plant import KinematicPlant  # noqa: E402
 from hardware.recorder import record_gait  # noqa: E402
-from integrators.runs import simulate_like  # noqa: E402
+from integrators.simulate import simulate_like  # noqa: E402
 from sysid.metrics import compare_runs  # noqa: E402
 
 GAIT = SidewindingGait(freq_hz=0.5, ramp_s=0.5)

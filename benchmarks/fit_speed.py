@@ -19,7 +19,7 @@ from sysid.dataset import DATA_DIR, load_manifest
 from sysid.lsq import fit_lsq
 from sysid.objective import Objective
 from sysid.report import evaluate_held_out
-from sysid.runsets import read_runs
+from sysid.splits import read_runs
 
 
 def evals_per_second(objective: Objective, k: int) -> float:

@@ -8,7 +8,7 @@ import numpy as np
 
 from cobra_model import ModelParameters
 from cobra_model.runs import Run
-from integrators.runs import simulate_like
+from integrators.simulate import simulate_like
 from sysid.metrics import compare_runs
 
 

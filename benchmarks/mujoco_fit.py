@@ -5,7 +5,7 @@ contact configurations, over 3 noise seeds and 2 starting headings, the fitted m
 final head error is at most 5 cm on every gait and its joint RMSE at most 1.5 times the
 quantisation-and-noise floor. This benchmark measures exactly that, and reports where it fails.
 
-Configurations (the robot's parameter error ``TRUTH`` in all; :mod:`sysid.mujoco_runs`):
+Configurations (the robot's parameter error ``TRUTH`` in all; :mod:`sysid.mujoco_recording`):
 
 | name | contact | friction cone | solref |
 |---|---|---|---|
@@ -52,12 +52,12 @@ from _results import write_results
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.runs import Run
 from integrators.mujoco_twin import TwinOptions
-from integrators.runs import simulate_like
+from integrators.simulate import simulate_like
 from cobra_model.servo import PULSES_PER_REV
 from sysid.dataset import RunPlan
 from sysid.lsq import fit_lsq
 from sysid.metrics import compare_runs
-from sysid.mujoco_runs import describe, record_mujoco, stiff_contact, twin_options
+from sysid.mujoco_recording import describe, record_mujoco, stiff_contact, twin_options
 from sysid.objective import Objective, Weights
 
 #: The robot's parameter error (as in benchmarks/mujoco_robustness.py).

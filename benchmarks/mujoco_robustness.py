@@ -1,7 +1,7 @@
 """Discrepancy workflow on runs MuJoCo generated: MuJoCo effect vs named effect, gap before/after, wall time.
 
 Mirrors ``benchmarks/diagnose_accuracy.py``, but the "measured" runs come from MuJoCo's twin of
-the same URDF (:mod:`sysid.mujoco_runs`: another contact model, integrator and servo model),
+the same URDF (:mod:`sysid.mujoco_recording`: another contact model, integrator and servo model),
 with the same parameter error (``TRUTH``) and one physical effect added in MuJoCo per case:
 
 | case | MuJoCo effect | closest effect of our library |
@@ -31,7 +31,7 @@ our simulator differs from MuJoCo with no effect, both at the true parameters (m
 difference is hard to tell from it.
 
 ``--contact stiff`` runs the same cases on MuJoCo's contact near its rigid limit (2 ms time
-constant instead of 20 ms, :func:`sysid.mujoco_runs.stiff_contact`), the configuration on which
+constant instead of 20 ms, :func:`sysid.mujoco_recording.stiff_contact`), the configuration on which
 our ground can follow MuJoCo's (``benchmarks/contact_time_constant.py``); results then go to
 ``mujoco_robustness_stiff.{json,md}``.
 
@@ -53,13 +53,13 @@ from _results import write_results
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.runs import Run
 from integrators.mujoco_twin import TwinOptions
-from integrators.runs import simulate_like
+from integrators.simulate import simulate_like
 from sysid.diagnose import Diagnosis
 from sysid.dataset import RunPlan
 from sysid.diagnose import DiagnoseConfig, diagnose
 from sysid.effects import EffectLibrary
 from sysid.metrics import compare_runs
-from sysid.mujoco_runs import record_mujoco, stiff_contact, twin_options
+from sysid.mujoco_recording import record_mujoco, stiff_contact, twin_options
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
                              "while developing)")
     parser.add_argument("--contact", choices=CONTACTS, default="default",
                         help="MuJoCo's contact: its default soft one (solref 20 ms; results mujoco_robustness.*) "
-                             "or near rigid (2 ms, sysid.mujoco_runs.stiff_contact; mujoco_robustness_stiff.*)")
+                             "or near rigid (2 ms, sysid.mujoco_recording.stiff_contact; mujoco_robustness_stiff.*)")
     parser.add_argument("--effect-sizes", action="store_true",
                         help="print each effect's size beside our simulator's difference from MuJoCo; no diagnosis")
     args = parser.parse_args(argv)
@@ -175,21 +175,20 @@ def main(argv: list[str] | None = None) -> int:
 
 def row(case: str, label: str, seed: int, d: Diagnosis, wall_s: float) -> dict:
     """One table row of a diagnosis (see the module docstring)."""
-    out = {"case": case, "label": label, "seed": seed, "named": [e["name"] for e in d.effects],
-           "structural": d.structural, "verdict": d.verdict, "wall_s": wall_s,
-           "head_final_before_m": d.gap_before["mean"]["head_final_error_m"],
-           "head_final_after_m": d.gap_after["mean"]["head_final_error_m"],
-           "joint_rmse_before_rad": d.gap_before["mean"]["joint_rmse_rad"],
-           "joint_rmse_after_rad": d.gap_after["mean"]["joint_rmse_rad"],
+    out = {"case": case, "label": label, "seed": seed, "named": [e.name for e in d.effects],
+           "structural": [s.to_json() for s in d.structural], "verdict": d.verdict, "wall_s": wall_s,
+           "head_final_before_m": d.gap_before.head_final_error_m,
+           "head_final_after_m": d.gap_after.head_final_error_m,
+           "joint_rmse_before_rad": d.gap_before.joint_rmse_rad,
+           "joint_rmse_after_rad": d.gap_after.joint_rmse_rad,
            "round1": [c.to_json() for c in d.rounds[0][:3]] if d.rounds else [],
            "counterpart": None}
     if case in COUNTERPARTS:
         pname, true = COUNTERPARTS[case]
         for e in d.effects:
-            if pname in e["params"]:
-                p = e["params"][pname]
-                lo, hi = p["ci95"] or (np.nan, np.nan)
-                out["counterpart"] = {"parameter": pname, "mujoco": true, "value": p["value"], "ci95": [lo, hi],
+            if e.parameter == pname:
+                lo, hi = e.ci95 or (np.nan, np.nan)
+                out["counterpart"] = {"parameter": pname, "mujoco": true, "value": e.value, "ci95": [lo, hi],
                                       "holds": bool(lo <= true <= hi)}
     return out
 

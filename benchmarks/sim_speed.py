@@ -31,7 +31,7 @@ from benchmarks._results import write_results  # noqa: E402
 from cobra_model import CobraModel, ModelParameters, SidewindingGait  # noqa: E402
 from integrators import Simulator, mujoco_twin  # noqa: E402
 from integrators.batch import BatchSimulator  # noqa: E402
-from integrators.runs import simulate_gait, simulate_like  # noqa: E402
+from integrators.simulate import simulate_gait, simulate_like  # noqa: E402
 
 DURATION = 10.0
 DT = 1e-3

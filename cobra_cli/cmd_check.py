@@ -15,7 +15,7 @@ from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run
 from sysid.datacheck import DataCheck, apply, check_runs
-from sysid.runsets import expand, read_runs
+from sysid.splits import expand, read_runs
 
 #: Horizon [s] of the identifiability Jacobian (see :func:`sysid.datacheck.check_runs`).
 DEFAULT_HORIZON_S = 3.0

@@ -1,7 +1,7 @@
 """``cobra compare``: the sim-to-real gap between a measured run and a simulated one.
 
 With one run, the run is first reproduced in simulation (its initial pose and ``q_ref`` columns,
-:func:`integrators.runs.simulate_like`) with the given or the nominal parameters.
+:func:`integrators.simulate.simulate_like`) with the given or the nominal parameters.
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from cobra_cli.common import load_params
 from cobra_cli.progress import progress_bar
 from cobra_model.errors import InputError
 from cobra_model.runs import Run, read_run
-from integrators.runs import simulate_like
+from integrators.simulate import simulate_like
 from sysid.metrics import DEFAULT_WINDOW_S, GapReport, compare_runs
 
 #: Files written by ``--plots DIR``: figure key -> file name (PNGs and the 3-D replay).

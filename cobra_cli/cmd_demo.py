@@ -14,7 +14,7 @@ from cobra_cli.common import check_writable
 from cobra_cli.progress import progress_bar
 from cobra_model.model import CobraModel
 from cobra_model.runs import Run, read_run
-from integrators.runs import simulate_like
+from integrators.simulate import simulate_like
 from sysid.dataset import DATA_DIR, load_manifest
 from sysid.metrics import compare_runs
 from viz.replay import write_replay_html
@@ -78,8 +78,5 @@ def run(args: argparse.Namespace) -> int:
     if args.skip_diagnose:
         return 0
     print("\ndiscrepancy workflow (cobra diagnose) on the training runs, judged on the held-out runs:")
-    from cobra_cli import cmd_diagnose
-    diag_args = argparse.Namespace(runs=[str(manifest)], holdout=[], out=args.out / "diagnosis", json=False,
-                                   max_effects=2, params=None, free=None, fit_runs=6, force=args.force,
-                                   no_check=False)
-    return cmd_diagnose.run(diag_args)
+    from cobra_cli.cmd_diagnose import diagnose_to
+    return diagnose_to(args.out / "diagnosis", [str(manifest)], max_effects=2, fit_runs=6, force=args.force)

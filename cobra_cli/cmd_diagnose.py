@@ -5,13 +5,14 @@ import argparse
 import json
 import sys
 from pathlib import Path
+from typing import Sequence
 
 from cobra_cli.cmd_check import check_before_fit
 from cobra_cli.common import check_writable, load_params, parse_names
 from cobra_model.errors import InputError
 from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
 from sysid.report import head_text
-from sysid.runsets import expand, read_runs
+from sysid.splits import expand, read_runs
 
 OUTPUTS = ("report.html", "diagnosis.json", "augmented_params.json")
 
@@ -41,26 +42,36 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.out.exists() and not args.out.is_dir():
-        raise InputError(f"--out {args.out}: exists and is not a directory")
-    if args.out.exists():
+    return diagnose_to(args.out, args.runs, holdout=args.holdout, max_effects=args.max_effects, params=args.params,
+                       free=args.free, fit_runs=args.fit_runs, force=args.force, check=not args.no_check,
+                       json_out=args.json)
+
+
+def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), max_effects: int = 2,
+                params: str | None = None, free: str | None = None, fit_runs: int = DiagnoseConfig.fit_runs,
+                force: bool = False, check: bool = True, json_out: bool = False) -> int:
+    """``cobra diagnose``'s work (also ``cobra demo``'s last step): the arguments are the command's
+    options; writes ``OUTPUTS`` into ``out`` and prints the summary (or the JSON). Returns 0."""
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {out}: exists and is not a directory")
+    if out.exists():
         for name in OUTPUTS:
-            check_writable(args.out / name, args.force)
-    if args.max_effects < 0:
-        raise InputError(f"--max-effects must be >= 0, got {args.max_effects}")
-    start = load_params(args.params)
-    if args.free:
-        start = start.with_frozen(free=parse_names(args.free, "--free"))
-    train_paths, val_paths = expand(args.runs)
-    val_paths += [Path(p) for p in args.holdout]
+            check_writable(out / name, force)
+    if max_effects < 0:
+        raise InputError(f"--max-effects must be >= 0, got {max_effects}")
+    start = load_params(params)
+    if free:
+        start = start.with_frozen(free=parse_names(free, "--free"))
+    train_paths, val_paths = expand(list(runs))
+    val_paths += [Path(p) for p in holdout]
     if not train_paths or not val_paths:
         raise InputError("diagnose needs training runs and held-out runs (--holdout, or a manifest's validation)")
-    train, holdout = read_runs(train_paths), read_runs(val_paths)
-    check = None
-    if not args.no_check:
+    train, held = read_runs(train_paths), read_runs(val_paths)
+    data_check = None
+    if check:
         # with --json, stdout carries only the JSON
-        start, check = check_before_fit(train, start, held_out=holdout, out=sys.stderr if args.json else None)
-    config = DiagnoseConfig(max_effects=args.max_effects, fit_runs=args.fit_runs)
+        start, data_check = check_before_fit(train, start, held_out=held, out=sys.stderr if json_out else None)
+    config = DiagnoseConfig(max_effects=max_effects, fit_runs=fit_runs)
     from tqdm import tqdm
     bar = tqdm(desc="diagnose", unit="step", leave=False, disable=None)
 
@@ -70,35 +81,33 @@ def run(args: argparse.Namespace) -> int:
         if bar.disable:
             print(f"  ... {message}", flush=True)
 
-    result = diagnose(train, holdout, params=start, config=config, progress=progress)
+    result = diagnose(train, held, params=start, config=config, progress=progress)
     bar.close()
-    args.out.mkdir(parents=True, exist_ok=True)
-    result.params_after.save(args.out / "augmented_params.json", force=True)
+    out.mkdir(parents=True, exist_ok=True)
+    result.params_after.save(out / "augmented_params.json", force=True)
     doc = result.to_json()
-    doc["augmented_params"] = str(args.out / "augmented_params.json")
-    doc["data_check"] = check.to_json_dict() if check is not None else None
-    (args.out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
-    _write_report(result, args.out)
-    if args.json:
+    doc["augmented_params"] = str(out / "augmented_params.json")
+    doc["data_check"] = data_check.to_json_dict() if data_check is not None else None
+    (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    _write_report(result, out)
+    if json_out:
         print(json.dumps(doc, indent=2, default=float))
         return 0
     print(result.verdict)
     for d in result.structural:
-        print(f"  structural difference (not named): {d['name']} would cut the held-out cost by "
-              f"{100 * d['held_out_improvement']:.0f} % only with {d['why']}")
+        print(f"  structural difference (not named): {d.name} would cut the held-out cost by "
+              f"{100 * d.held_out_improvement:.0f} % only with {d.why}")
     for e in result.effects:
-        (pname, p), = e["params"].items()
-        ci = p["ci95"]
-        ci_text = f" (95% [{ci[0]:.4g}, {ci[1]:.4g}])" if ci else ""
-        print(f"  {e['name']}: {pname} = {p['value']:.4g} {p['unit']}{ci_text}; held-out cost "
-              f"-{100 * e['held_out_improvement']:.0f} %, dBIC {e['evidence']['delta_bic']:.0f}")
-    gb, ga = result.gap_before["mean"], result.gap_after["mean"]
-    print(f"  held-out head final error {head_text(gb['head_final_error_m'], ga['head_final_error_m'])}, "
-          f"joint RMSE {gb['joint_rmse_rad']:.4f} -> {ga['joint_rmse_rad']:.4f} rad ({result.seconds:.0f} s)")
+        ci_text = f" (95% [{e.ci95[0]:.4g}, {e.ci95[1]:.4g}])" if e.ci95 else ""
+        print(f"  {e.name}: {e.parameter} = {e.value:.4g} {e.unit}{ci_text}; held-out cost "
+              f"-{100 * e.held_out_cost_reduction:.0f} %, dBIC {e.delta_bic:.0f}")
+    gb, ga = result.gap_before, result.gap_after
+    print(f"  held-out head final error {head_text(gb.head_final_error_m, ga.head_final_error_m)}, "
+          f"joint RMSE {gb.joint_rmse_rad:.4f} -> {ga.joint_rmse_rad:.4f} rad ({result.seconds:.0f} s)")
     white = result.fits[-1].residual_whiteness
     if white is not None:
         print(f"  {white.console_line()}")
-    print(f"report: {args.out / 'report.html'}; model with the effect: {args.out / 'augmented_params.json'}")
+    print(f"report: {out / 'report.html'}; model with the effect: {out / 'augmented_params.json'}")
     return 0
 
 

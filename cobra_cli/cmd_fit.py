@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from pathlib import Path
 
@@ -13,7 +12,7 @@ from cobra_model.parameters import ModelParameters
 from sysid.executor import make_executor
 from sysid.lsq import FitResult
 from sysid.objective import Objective, Weights
-from sysid.runsets import expand, read_runs
+from sysid.splits import expand, read_runs
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -118,18 +117,7 @@ def run(args: argparse.Namespace) -> int:
     executor.close()
     fitted = result.params
     doc = fitted.to_json_dict()
-    doc["fit"] = {"method": result.method, "status": result.status.value, "cost": result.cost,
-                  "initial_cost": result.initial_cost, "evaluations": result.evaluations,
-                  "seconds": result.seconds, "train_runs": [str(p) for p in train_paths],
-                  "intervals": {r.name: [r.ci_low, r.ci_high] for r in result.report},
-                  "identifiable": {r.name: r.reason for r in result.report},
-                  "intervals_iid": {r.name: [r.ci_low_iid, r.ci_high_iid] for r in result.report},
-                  "interval_method": result.interval_method,
-                  "intervals_without_current": ({r.name: [r.ci_low, r.ci_high] for r in result.report_without_current}
-                                                if result.report_without_current else None),
-                  "residual_whiteness": (result.residual_whiteness.to_json_dict()
-                                         if result.residual_whiteness is not None else None),
-                  "log": [dataclasses.asdict(entry) for entry in result.log],
+    doc["fit"] = {**result.to_json(), "train_runs": [str(p) for p in train_paths],
                   "data_check": check.to_json_dict() if check is not None else None}
     out.write_text(json.dumps(doc, indent=2, default=float) + "\n")
     print(f"{result.status.value} after {result.evaluations} evaluations in {result.seconds:.1f} s; "

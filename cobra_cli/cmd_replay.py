@@ -16,7 +16,7 @@ from cobra_cli.progress import progress_bar
 from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from cobra_model.runs import Run, read_run
-from integrators.runs import simulate_like
+from integrators.simulate import simulate_like
 from viz.replay import DEFAULT_FPS, serve_replay, write_replay_html
 
 

@@ -11,7 +11,7 @@ from cobra_model.errors import InputError
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.runs import read_run, write_run
-from integrators.runs import simulate_gait, simulate_like
+from integrators.simulate import simulate_gait, simulate_like
 from integrators.simulator import SimSettings, Simulator
 from integrators.stability import check_steps
 from sysid.effects import EffectLibrary, parse_effects

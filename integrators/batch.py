@@ -24,7 +24,7 @@ from integrators.simulator import SimSettings, SimState, Simulator
 
 def model_key(params: ModelParameters) -> tuple:
     """What of ``params`` is part of the Pinocchio model (environments with equal keys share one)."""
-    return tuple(params.per_joint("armature")), params.get("link_mass_error", 0.0)
+    return tuple(params.per_joint("armature")), params.get("link_mass_error")
 
 
 class BatchSimulator:

@@ -14,7 +14,7 @@ whose ``tanh`` caps it; the springs and dampers that do bound it are the ground'
 contact, the motor's back-EMF damping (every step) and the servo loop (every tick):
 :mod:`integrators.stability` gives the largest stable ``dt`` and ``control_dt`` for a model
 and parameter set. At ``dt = 1 ms`` the step is stable over the ground parameters' bounds, but
-not for the lightest transmission inertias: below about 2e-4 kg m^2 (at the nominal motor
+not for the lightest transmission inertias: below about 3.5e-4 kg m^2 (at the nominal motor
 constant) the back-EMF damping needs a shorter step. ``cobra simulate`` checks its steps
 before the run; a divergence names the limits.
 
@@ -22,11 +22,13 @@ The servo's position loop runs at ``control_dt`` (an integer multiple of ``dt``,
 PWM duty is held between ticks while the motor torque, which depends on the joint speed through
 the back-EMF, is re-evaluated every physics step.
 
-Model effects beyond the nominal parameter table enter through parameters of the same set, all
-inactive by default (see ``sysid.effects``): ``joint_coulomb`` [N m], ``torque_limit`` [N m],
-``lateral_friction_ratio``, ``backlash`` [rad] (a dead zone on the position loop's error),
+Model effects beyond the nominal parameter table enter through parameters of the same set:
+``joint_coulomb`` [N m], ``torque_limit`` [N m], ``lateral_friction_ratio``, ``backlash`` [rad]
+(a dead zone on the position loop's error),
 ``encoder_offset`` [rad] (the encoder reads ``q + offset``), ``actuator_delay`` [s] (commands
-reach the servo late) and ``link_mass_error`` [kg] (added to the root module).
+reach the servo late) and ``link_mass_error`` [kg] (added to the root module). A set without
+one of them simulates it at its inactive value, which lives only in
+``cobra_model.parameters.EFFECT_PARAMETERS`` (see ``sysid.effects``).
 """
 from __future__ import annotations
 
@@ -42,8 +44,6 @@ from cobra_model.model import RobotModel
 from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters
 from integrators import kernels as K
 from integrators import stability
-
-NO_TORQUE_LIMIT_NM = 1e9
 
 
 class SimulationDiverged(RuntimeError):
@@ -167,30 +167,30 @@ class Simulator:
         self.settings = settings if settings is not None else SimSettings()
         p, s = self.params, self.settings
         n = model.n_joints
-        per_joint = lambda name, default: p.per_joint(name, default)[:n]  # noqa: E731
-        if p.get("link_mass_error", 0.0):
+        per_joint = lambda name: p.per_joint(name)[:n]  # noqa: E731
+        if p.get("link_mass_error"):
             model = model.with_link_mass(model.body_names[0], p.value("link_mass_error"))
-        self.model = model.with_armature(per_joint("armature", None))
+        self.model = model.with_armature(per_joint("armature"))
         self._pin = self.model.pin_model
         self._data = self._pin.createData()
         ground = np.zeros(K.N_GROUND)
         ground[K.G_K1], ground[K.G_K2] = p.k1, p.k2
         ground[K.G_MU_C], ground[K.G_MU_S], ground[K.G_MU_V], ground[K.G_V_S] = p.mu_c, p.mu_s, p.mu_v, p.v_s
         ground[K.G_EPS] = s.sgn_eps
-        ground[K.G_LATERAL] = p.get("lateral_friction_ratio", 1.0)
-        ground[K.G_CONE] = p.get("friction_cone", 0.0)
-        ground[K.G_ROUND] = p.get("contact_rounding", 0.0)
+        ground[K.G_LATERAL] = p.get("lateral_friction_ratio")
+        ground[K.G_CONE] = p.get("friction_cone")
+        ground[K.G_ROUND] = p.get("contact_rounding")
         self.ground = ground
         act = np.zeros((n, K.N_ACT))
-        act[:, K.A_DAMPING] = per_joint("joint_damping", None)
-        act[:, K.A_RKM] = SERVO_GEAR_RATIO * per_joint("motor_km", None)
-        act[:, K.A_COULOMB] = per_joint("joint_coulomb", 0.0)
-        act[:, K.A_TAU_MAX] = per_joint("torque_limit", NO_TORQUE_LIMIT_NM)
+        act[:, K.A_DAMPING] = per_joint("joint_damping")
+        act[:, K.A_RKM] = SERVO_GEAR_RATIO * per_joint("motor_km")
+        act[:, K.A_COULOMB] = per_joint("joint_coulomb")
+        act[:, K.A_TAU_MAX] = per_joint("torque_limit")
         act[:, K.A_COULOMB_EPS] = s.joint_coulomb_eps
-        act[:, K.A_ENC_OFFSET] = per_joint("encoder_offset", 0.0)
-        act[:, K.A_BACKLASH] = per_joint("backlash", 0.0)
+        act[:, K.A_ENC_OFFSET] = per_joint("encoder_offset")
+        act[:, K.A_BACKLASH] = per_joint("backlash")
         self.act = act
-        self.delay_s = p.get("actuator_delay", 0.0)
+        self.delay_s = p.get("actuator_delay")
         g = s.gains
         scal = np.zeros(K.N_SCAL)
         scal[K.S_DT], scal[K.S_VOLTAGE], scal[K.S_RESISTANCE] = s.dt, s.voltage, WINDING_RESISTANCE_OHM

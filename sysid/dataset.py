@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Callable
 
@@ -30,11 +30,11 @@ import numpy as np
 from cobra_model.errors import InputError
 from cobra_model.gait import PAPER_FREQUENCIES_HZ, SidewindingGait
 from cobra_model.model import CobraModel
-from cobra_model.parameters import ModelParameters, Parameter
+from cobra_model.parameters import EFFECT_PARAMETERS, ModelParameters
 from cobra_model.runs import Run, interpolate_quaternions, interpolate_rows, read_run, write_run
 from cobra_model.servo import RAD_PER_PULSE
 from cobra_model.shipped import shipped_path
-from integrators.runs import TRACKED_BODIES
+from integrators.simulate import TRACKED_BODIES
 from integrators.simulator import Simulator
 
 #: ``data/reference``, as installed (package data ``sysid.reference``).
@@ -54,8 +54,8 @@ def ground_truth() -> ModelParameters:
         armature=0.045, joint_damping=0.25, motor_km=0.0095,
         k1=1.6e4, k2=45.0, mu_c=0.22, mu_s=0.34, mu_v=1.2, v_s=0.03,
     )
-    return p.with_parameters([Parameter("joint_coulomb", "N m", 0.35, 0.0, 3.0, group="joint_coulomb_friction",
-                                        doc="Coulomb friction torque of the gearbox")])
+    coulomb = next(e for e in EFFECT_PARAMETERS if e.name == "joint_coulomb")
+    return p.with_parameters([replace(coulomb, value=0.35)])
 
 
 @dataclass(frozen=True)
@@ -128,7 +128,7 @@ def measure(t: np.ndarray, q_pin: np.ndarray, q_joint_meas: np.ndarray, run_plan
 
     Returns:
         The run on the 50 Hz jittered joint-log times: commands ``q_ref`` (the gait's), quantised
-        encoders ``q``, head pose and :data:`~integrators.runs.TRACKED_BODIES` with mocap noise
+        encoders ``q``, head pose and :data:`~integrators.simulate.TRACKED_BODIES` with mocap noise
         and dropouts (NaN).
 
     Raises:

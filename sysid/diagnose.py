@@ -50,12 +50,12 @@ from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run
-from integrators.runs import rollout_like, simulate_like
+from integrators.simulate import rollout_like, simulate_like
 from integrators.simulator import Simulator
 from sysid.effects import Effect, EffectLibrary
 from sysid.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
 from sysid.objective import Objective, Weights
-from sysid.report import HeldOut, gap_summary, head_text, pair_held_out
+from sysid.report import GapSummary, HeldOut, head_text, pair_held_out
 from sysid.signature import Signature, localise
 
 
@@ -157,33 +157,99 @@ class Baseline:
         return Baseline(min(self.train_rss, other.train_rss), held)
 
 
+@dataclass(frozen=True)
+class NamedEffect:
+    """An effect the workflow named, its fitted parameter and the evidence for it.
+
+    Attributes:
+        name: the effect (``sysid.effects``); parameter, value, unit: its fitted parameter.
+        ci95: the parameter's 95 % interval (None if the fit gave none).
+        held_out_cost_reduction: fraction of the held-out cost removed by adding it.
+        held_out_runs_improved: held-out runs whose cost fell; delta_bic: BIC change (training).
+        signature_match: how well the residual signature fits the effect's, in [0, 1].
+        predicted_signature: the effect's predicted signature, in words.
+    """
+
+    name: str
+    parameter: str
+    value: float
+    unit: str
+    ci95: tuple[float, float] | None
+    held_out_cost_reduction: float
+    held_out_runs_improved: int
+    delta_bic: float
+    signature_match: float
+    predicted_signature: str
+
+    def to_json(self) -> dict:
+        """The effect as in ``diagnosis.json`` (``params`` keyed by the parameter's name)."""
+        return {"name": self.name,
+                "params": {self.parameter: {"value": self.value, "unit": self.unit,
+                                            "ci95": list(self.ci95) if self.ci95 else None}},
+                "evidence": {"held_out_cost_reduction": self.held_out_cost_reduction,
+                             "held_out_runs_improved": self.held_out_runs_improved, "delta_bic": self.delta_bic,
+                             "signature_match": self.signature_match,
+                             "predicted_signature": self.predicted_signature}}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "NamedEffect":
+        """Inverse of :meth:`to_json`."""
+        (parameter, p), = data["params"].items()
+        ev = data["evidence"]
+        return cls(data["name"], parameter, p["value"], p["unit"], tuple(p["ci95"]) if p["ci95"] else None,
+                   ev["held_out_cost_reduction"], ev["held_out_runs_improved"], ev["delta_bic"],
+                   ev["signature_match"], ev["predicted_signature"])
+
+
+@dataclass(frozen=True)
+class StructuralDifference:
+    """A significant candidate the workflow did not name: its fitted value is no physical value
+    of the effect (``why``), so it stands in for a difference of another structure."""
+
+    name: str
+    value: float
+    unit: str
+    why: str
+    held_out_improvement: float
+    round: int
+
+    def to_json(self) -> dict:
+        return {"name": self.name, "value": self.value, "unit": self.unit, "why": self.why,
+                "held_out_improvement": self.held_out_improvement, "round": self.round}
+
+    @classmethod
+    def from_json(cls, data: dict) -> "StructuralDifference":
+        return cls(data["name"], data["value"], data["unit"], data["why"], data["held_out_improvement"],
+                   data["round"])
+
+
 @dataclass
 class Diagnosis:
     """What the workflow found (see :meth:`to_json` for ``diagnosis.json``)."""
 
-    effects: list[dict] = field(default_factory=list)
+    effects: list[NamedEffect] = field(default_factory=list)
     rounds: list[list[Candidate]] = field(default_factory=list)
     signature: Signature | None = None
     signature_after: Signature | None = None
     held: list[HeldOut] = field(default_factory=list)
-    gap_before: dict = field(default_factory=dict)
-    gap_after: dict = field(default_factory=dict)
+    gap_before: GapSummary | None = None
+    gap_after: GapSummary | None = None
     params_before: ModelParameters | None = None
     params_after: ModelParameters | None = None
     fits: list[FitResult] = field(default_factory=list)
     seconds: float = 0.0
     verdict: str = ""
-    structural: list[dict] = field(default_factory=list)
+    structural: list[StructuralDifference] = field(default_factory=list)
     weights: Weights = field(default_factory=Weights)
 
     def to_json(self) -> dict:
         return {
-            "effects": self.effects,
+            "effects": [e.to_json() for e in self.effects],
             "channel_scales": {"head_scale_m": self.weights.head_scale_m,
                                "joint_scale_rad": self.weights.joint_scale_rad},
-            "structural": self.structural,
-            "gap_before": self.gap_before,
-            "gap_after": self.gap_after,
+            "structural": [s.to_json() for s in self.structural],
+            "gap_before": self.gap_before.to_json() if self.gap_before else None,
+            "gap_after": self.gap_after.to_json() if self.gap_after else None,
             "signature": self.signature.to_json() if self.signature else None,
             "signature_after": self.signature_after.to_json() if self.signature_after else None,
             "candidates": [[c.to_json() for c in r] for r in self.rounds],
@@ -199,14 +265,14 @@ def verdict(d: Diagnosis) -> str:
     or that nothing explains the gap, with the residual signature when no effect is named."""
     parts = []
     if d.structural:
-        proxies = "; ".join(f"{s['name']} would cut the held-out cost by {100 * s['held_out_improvement']:.0f} % "
-                            f"but only with {s['why']}" for s in d.structural)
+        proxies = "; ".join(f"{s.name} would cut the held-out cost by {100 * s.held_out_improvement:.0f} % "
+                            f"but only with {s.why}" for s in d.structural)
         parts.append("the model's structure differs in a way no library effect explains physically ("
                      f"{proxies}); not named")
     if d.effects:
-        names = " and ".join(e["name"] for e in d.effects)
+        names = " and ".join(e.name for e in d.effects)
         parts.append(f"missing effect{'s' if len(d.effects) > 1 else ''}: {names}; held-out final head error "
-                     + head_text(d.gap_before["mean"]["head_final_error_m"], d.gap_after["mean"]["head_final_error_m"]))
+                     + head_text(d.gap_before.head_final_error_m, d.gap_after.head_final_error_m))
     else:
         parts.append("no library effect explains the gap" + (" significantly" if not d.structural else ""))
     if not d.effects or d.structural:
@@ -586,10 +652,9 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
 
         best, candidates, proxies = choose(candidates, baseline, n, config, refit_without)
         result.rounds.append(candidates)
-        known = {s["name"] for s in result.structural}
-        result.structural += [{"name": c.name, "value": c.value, "unit": c.unit, "why": c.implausible,
-                               "held_out_improvement": c.held_out_improvement, "round": round_ + 1}
-                              for c in proxies if c.name not in known]
+        known = {s.name for s in result.structural}
+        result.structural += [StructuralDifference(c.name, c.value, c.unit, c.implausible, c.held_out_improvement,
+                                                   round_ + 1) for c in proxies if c.name not in known]
         if best is None:
             break
         progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
@@ -599,21 +664,16 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         result.fits.append(final)
         current = final.params
         interval = next((r for r in final.report if r.name == effect.parameter.name), None)
-        result.effects.append({
-            "name": best.name,
-            "params": {effect.parameter.name: {"value": current.value(effect.parameter.name),
-                                               "unit": effect.parameter.unit,
-                                               "ci95": [interval.ci_low, interval.ci_high] if interval else None}},
-            "evidence": {"held_out_cost_reduction": best.held_out_improvement,
-                         "held_out_runs_improved": best.runs_improved, "delta_bic": best.delta_bic,
-                         "signature_match": best.signature_match, "predicted_signature": effect.signature},
-            "held_out_improvement": best.held_out_improvement,
-        })
+        result.effects.append(NamedEffect(
+            best.name, effect.parameter.name, current.value(effect.parameter.name), effect.parameter.unit,
+            (interval.ci_low, interval.ci_high) if interval else None, best.held_out_improvement,
+            best.runs_improved, best.delta_bic, best.signature_match, effect.signature))
         remaining.remove(best.name)
     result.params_after = current
     sims_after = [simulate_like(r, params=current) for r in holdout]
     result.held = pair_held_out(holdout, sims_before, sims_after)
-    result.gap_before, result.gap_after = gap_summary(result.held, "before"), gap_summary(result.held, "after")
+    result.gap_before = GapSummary.of({h.name: h.gap_before for h in result.held})
+    result.gap_after = GapSummary.of({h.name: h.gap_after for h in result.held})
     result.signature_after = localise(list(zip(holdout, sims_after)))
     result.verdict = verdict(result)
     result.seconds = time.perf_counter() - t0

@@ -6,8 +6,10 @@ enters the dynamics or the measurement, and the residual signature it predicts; 
 :class:`EffectLibrary` combines effects (``lib_a + lib_b``), lists them
 (``get_feature_names``) and adds their parameters to a parameter set (``transform``).
 
-Every effect is already part of the simulator (``integrators.simulator``), inactive by default;
-adding its parameter to a :class:`ModelParameters` switches it on:
+Every effect is already part of the simulator (``integrators.simulator``), inactive by default:
+its parameter, with the value at which it is inactive, is in
+:data:`cobra_model.parameters.EFFECT_PARAMETERS`, which the simulator reads when a parameter set
+lacks it; adding the parameter to a :class:`ModelParameters` switches the effect on:
 
 | effect | parameter | enters | plausible on COBRA |
 | --- | --- | --- | --- |
@@ -30,7 +32,7 @@ from typing import Iterable, Iterator, Mapping
 
 from cobra_model.servo import SERVO_STALL_TORQUE_NM
 from cobra_model.errors import InputError
-from cobra_model.parameters import ModelParameters, Parameter
+from cobra_model.parameters import EFFECT_PARAMETERS, ModelParameters, Parameter
 
 
 @dataclass(frozen=True)
@@ -97,33 +99,30 @@ class Effect:
             raise InputError(f"effect {self.name}: {exc}") from None
 
 
-def _p(name: str, unit: str, inactive: float, lo: float, hi: float, doc: str, log: bool = False,
-       group: str = "") -> Parameter:
-    return Parameter(name, unit, inactive, lo, hi, log_scale=log, group=group, doc=doc)
+_PARAMETER = {p.name: p for p in EFFECT_PARAMETERS}
 
 
 EFFECTS: tuple[Effect, ...] = (
     Effect("joint_coulomb_friction",
-           _p("joint_coulomb", "N m", 0.0, 0.0, 3.0, "Coulomb friction torque of the gearbox", group="joint_coulomb_friction"),
+           _PARAMETER["joint_coulomb"],
            0.05, "a torque -tau_c tanh(qdot / 0.05 rad/s) at every joint",
            "joint residuals on all joints, correlated with sign(qdot), largest at velocity reversals",
            (("r_sign", 1.0), ("reversal_ratio", 1.0)),
            plausible=(0.0, 1.5), realistic=0.3),  # up to ~15 % of the XH540's 9.9 N m stall torque lost in its gearbox
     Effect("backlash",
-           _p("backlash", "rad", 0.0, 0.0, 0.2, "half-width of the transmission dead zone", group="backlash"),
+           _PARAMETER["backlash"],
            0.005, "the servo loop does not act on the first +-b of its position error",
            "joint residuals correlated with sign(qdot), a lag of about b after each reversal",
            (("r_sign", 1.0), ("reversal_ratio", 1.0)),
            plausible=(0.0, 0.05), realistic=0.02),  # ~3 deg: gear play (~0.25 deg) plus printed horn/coupling play
     Effect("actuator_delay",
-           _p("actuator_delay", "s", 0.0, 0.0, 0.2, "command / bus latency", group="actuator_delay"),
+           _PARAMETER["actuator_delay"],
            0.005, "every servo receives its command late by the delay",
            "joint residuals proportional to -qdot (a time shift): best lag > 0",
            (("r_vel", 1.0), ("lag_s", 1.0)),
            plausible=(0.0, 0.1), realistic=0.04),  # a few cycles of a >= 20 Hz command bus
     Effect("torque_saturation",
-           _p("torque_limit", "N m", SERVO_STALL_TORQUE_NM, 0.5, SERVO_STALL_TORQUE_NM,
-              "motor torque limit (voltage/current)", group="torque_saturation"),
+           _PARAMETER["torque_limit"],
            4.0, "the motor torque is clipped at the limit",
            "joint residuals grow with commanded effort; amplitudes fall short at the fast, loaded joints",
            (("r_effort", 1.0), ("amplitude_ratio", -1.0)),
@@ -131,8 +130,7 @@ EFFECTS: tuple[Effect, ...] = (
            # below ~1 N m a pitch joint could not lift the next module (0.55 kg at 0.13 m: 0.7 N m)
            plausible=(1.0, SERVO_STALL_TORQUE_NM), realistic=2.5),
     Effect("anisotropic_ground_friction",
-           _p("lateral_friction_ratio", "1", 1.0, 0.2, 5.0, "sideways / along-body friction ratio",
-              log=True, group="anisotropic_ground_friction"),
+           _PARAMETER["lateral_friction_ratio"],
            1.2, "sideways friction of every contact scaled by the ratio (along-body unchanged)",
            "head-path residual with joints matched; slip residual sideways to the body",
            (("head_share", 1.0), ("sideways_share", 1.0)),
@@ -140,13 +138,13 @@ EFFECTS: tuple[Effect, ...] = (
            # modules' rolling sideways is already in the rigid-body dynamics, not in this ratio
            plausible=(0.5, 3.0), realistic=2.0),
     Effect("encoder_offset",
-           _p("encoder_offset", "rad", 0.0, -0.2, 0.2, "encoder zero offset (all joints)", group="encoder_offset"),
+           _PARAMETER["encoder_offset"],
            0.005, "the encoders read q + offset and the servo loop regulates the reading",
            "a constant offset of the joint residuals, independent of velocity",
            (("offset_score", 1.0),),
            plausible=(-0.1, 0.1), realistic=0.03),  # +-6 deg: a horn assembled a spline tooth off, a zero set by hand
     Effect("link_mass_error",
-           _p("link_mass_error", "kg", 0.0, -0.5, 2.0, "mass added to the head module (payload)", group="link_mass_error"),
+           _PARAMETER["link_mass_error"],
            0.05, "the head module's mass (and inertia, scaled) changes by the parameter",
            "head-path residual growing over the run; joint residuals small",
            (("head_share", 1.0), ("sideways_share", -1.0)),

@@ -14,8 +14,10 @@ from gymnasium import spaces
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
+from sysid.objective import ObjectiveTerms
 
-#: Objective terms that enter the observation when ``observe_terms`` is set, in order.
+#: Objective terms that enter the observation when ``observe_terms`` is set, in the order of
+#: :meth:`sysid.objective.ObjectiveTerms.observed`.
 OBSERVED_TERMS: tuple[str, ...] = ("head_final_m", "head_mean_m", "joint_rmse_rad", "cpg_sq")
 #: Observed terms are ``log10(term / reference term)`` clipped to +-this many decades, then
 #: divided by it (so each lies in [-1, 1]).
@@ -29,8 +31,8 @@ class TermsObjective(Protocol):
 
     params: ModelParameters
 
-    def terms(self, X: np.ndarray) -> list[dict[str, float]]:
-        """Objective terms (dicts with at least ``"total"`` and :data:`OBSERVED_TERMS`) per row of X."""
+    def terms(self, X: np.ndarray) -> list[ObjectiveTerms]:
+        """Objective terms per row of X."""
         ...
 
 
@@ -81,7 +83,7 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Rewards
 
-    ``-terms["total"]`` of the parameters after the step: the objective's weighted external
+    ``-terms.total`` of the parameters after the step: the objective's weighted external
     (final head position error [m]) plus internal (joint RMSE [rad] and squared CPG errors
     [rad^2]) errors, so 0 is a perfect match. A modification that gives invalid parameters
     (``mu_s < mu_c``), makes a simulation diverge or gives a non-finite total is not applied:
@@ -161,16 +163,16 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
             raise InputError("the objective is not finite at the initial parameters (invalid, diverging "
                              f"or NaN terms): {objective.params!r}")
         #: Terms at the initial parameters: the observation's reference and the failure scale.
-        self.reference_terms: dict[str, float] = reference
-        self.failure_total = failure_factor * reference["total"]
+        self.reference_terms: ObjectiveTerms = reference
+        self.failure_total = failure_factor * reference.total
         self.best_z = self.initial_z.copy()
-        self.best_terms: dict[str, float] = dict(reference)
+        self.best_terms: ObjectiveTerms = reference
         self._z = self.initial_z.copy()
-        self._terms: dict[str, float] = dict(reference)
+        self._terms: ObjectiveTerms = reference
         self._steps = 0
 
     # -- evaluation ---------------------------------------------------------------------------
-    def _evaluate(self, z: np.ndarray) -> dict[str, float] | None:
+    def _evaluate(self, z: np.ndarray) -> ObjectiveTerms | None:
         """Objective terms at unit coordinates ``z``, or None for invalid parameters, a diverging
         simulation or a non-finite total."""
         try:
@@ -182,27 +184,25 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
             terms = self.objective.terms(x[None, :])[0]
         except RuntimeError:  # integrators.simulator.SimulationDiverged and the batch's divergence
             return None
-        return terms if np.isfinite(terms["total"]) else None
+        return terms if np.isfinite(terms.total) else None
 
-    def _record(self, z: np.ndarray, terms: dict[str, float]) -> None:
+    def _record(self, z: np.ndarray, terms: ObjectiveTerms) -> None:
         """Make ``z`` current and remember it if it is the best so far."""
         self._z, self._terms = z, terms
-        if terms["total"] < self.best_terms["total"]:
-            self.best_z, self.best_terms = z.copy(), dict(terms)
+        if terms.total < self.best_terms.total:
+            self.best_z, self.best_terms = z.copy(), terms
 
     def _observation(self) -> np.ndarray:
         """z, then (with ``observe_terms``) the normalised terms, as float32."""
         if not self.observe_terms:
             return self._z.astype(np.float32)
-        ratio = [np.log10((self._terms[k] + TERM_FLOOR) / (self.reference_terms[k] + TERM_FLOOR))
-                 for k in OBSERVED_TERMS]
+        ratio = np.log10((self._terms.observed() + TERM_FLOOR) / (self.reference_terms.observed() + TERM_FLOOR))
         scaled = np.clip(ratio, -TERM_DECADES, TERM_DECADES) / TERM_DECADES
         return np.concatenate([self._z, scaled]).astype(np.float32)
 
     def _info(self, failed: bool) -> dict[str, Any]:
         """The info dict of ``reset`` and ``step`` (see the class docstring)."""
-        return {"z": self._z.copy(), "terms": dict(self._terms), "failed": failed,
-                "best_total": self.best_terms["total"]}
+        return {"z": self._z.copy(), "terms": self._terms, "failed": failed, "best_total": self.best_terms.total}
 
     # -- gymnasium API ------------------------------------------------------------------------
     def reset(self, *, seed: int | None = None,
@@ -219,7 +219,7 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
             jittered_terms = self._evaluate(jittered)
             if jittered_terms is not None:  # else start from the initial parameters
                 z, terms = jittered, jittered_terms
-        self._record(z, dict(terms))
+        self._record(z, terms)
         return self._observation(), self._info(False)
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
@@ -232,7 +232,7 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
         if terms is None:
             return self._observation(), -float(self.failure_total), False, truncated, self._info(True)
         self._record(z, terms)
-        return self._observation(), -float(terms["total"]), False, truncated, self._info(False)
+        return self._observation(), -float(terms.total), False, truncated, self._info(False)
 
     # -- results ------------------------------------------------------------------------------
     @property
@@ -240,6 +240,6 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
         """The best parameters evaluated so far (the initial ones if nothing beat them)."""
         return self.objective.params.from_unit(self.best_z)
 
-    def best(self) -> tuple[np.ndarray, dict[str, float], int]:
+    def best(self) -> tuple[np.ndarray, ObjectiveTerms, int]:
         """(best unit coordinates, their terms, evaluations so far): what a vectorised trainer collects."""
-        return self.best_z.copy(), dict(self.best_terms), self.evaluations
+        return self.best_z.copy(), self.best_terms, self.evaluations

@@ -273,6 +273,12 @@ class Whiteness:
                 "lag1_autocorrelation": self.lag1, "series": self.series, "white": self.white,
                 "verdict": self.verdict}
 
+    @classmethod
+    def from_json_dict(cls, data: dict) -> "Whiteness":
+        """Inverse of :meth:`to_json_dict`."""
+        return cls(float(data["statistic"]), int(data["dof"]), float(data["p_value"]), int(data["lags"]),
+                   float(data["lag1_autocorrelation"]), int(data["series"]), bool(data["white"]), str(data["verdict"]))
+
 
 def _autocorrelation(x: np.ndarray, lags: int) -> tuple[np.ndarray, int]:
     """Autocorrelations at lags 1..``lags`` of ``x`` about zero, with NaN as missing samples, and

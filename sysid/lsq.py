@@ -46,6 +46,7 @@ import os
 import sys
 import time
 from contextlib import contextmanager
+import dataclasses
 from dataclasses import dataclass, field
 from enum import Enum
 from typing import Callable, Iterator, Sequence
@@ -153,6 +154,43 @@ class FitResult:
     #: With the motor current fitted (``Weights.use_current``): the same fit's intervals from
     #: its head and joint residuals alone, to show what the current adds (None otherwise).
     report_without_current: list[ParameterReport] | None = None
+
+    def to_json(self) -> dict:
+        """The fit as the ``"fit"`` object of a fitted parameter file (without the parameters,
+        which are the file's body, and without ``extra``, a method's own diagnostics).
+
+        ``intervals``, ``identifiable`` and ``intervals_iid`` repeat the per-parameter
+        ``report`` by name, for readers that want one field.
+        """
+        without = self.report_without_current
+        return {
+            "method": self.method, "status": self.status.value, "cost": self.cost, "initial_cost": self.initial_cost,
+            "evaluations": self.evaluations, "seconds": self.seconds, "residual_count": self.residual_count,
+            "intervals": {r.name: [r.ci_low, r.ci_high] for r in self.report},
+            "identifiable": {r.name: r.reason for r in self.report},
+            "intervals_iid": {r.name: [r.ci_low_iid, r.ci_high_iid] for r in self.report},
+            "interval_method": self.interval_method,
+            "intervals_without_current": {r.name: [r.ci_low, r.ci_high] for r in without} if without else None,
+            "residual_whiteness": self.residual_whiteness.to_json_dict() if self.residual_whiteness else None,
+            "log": [dataclasses.asdict(entry) for entry in self.log],
+            "report": [dataclasses.asdict(r) for r in self.report],
+            "report_without_current": [dataclasses.asdict(r) for r in without] if without else None,
+            "singular_values": [float(s) for s in self.singular_values],
+        }
+
+    @classmethod
+    def from_json(cls, data: dict, params: ModelParameters) -> "FitResult":
+        """Inverse of :meth:`to_json`, with the fitted ``params`` (the parameter file's body)."""
+        without = data.get("report_without_current")
+        white = data.get("residual_whiteness")
+        return cls(params, FitStatus(data["status"]), float(data["cost"]), float(data["initial_cost"]),
+                   [IterationLog(**entry) for entry in data["log"]],
+                   [ParameterReport(**r) for r in data["report"]], np.asarray(data["singular_values"], dtype=float),
+                   int(data["evaluations"]), float(data["seconds"]), method=data["method"],
+                   residual_count=int(data.get("residual_count", 0)),
+                   residual_whiteness=Whiteness.from_json_dict(white) if white else None,
+                   interval_method=data.get("interval_method", ""),
+                   report_without_current=[ParameterReport(**r) for r in without] if without else None)
 
 
 @contextmanager

@@ -22,8 +22,9 @@ link mass or the command delay included), and chunks of parameter vectors are sp
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 
@@ -33,7 +34,7 @@ from cobra_model.parameters import ModelParameters
 from cobra_model.runs import Run, interpolate_rows
 from integrators import kernels as K
 from integrators.batch import BatchSimulator
-from integrators.runs import InitialPose, StartObservation, command_ticks
+from integrators.simulate import InitialPose, StartObservation, command_ticks
 from integrators.simulator import SimSettings, SimState, delay_commands
 from sysid.executor import Executor, LocalExecutor
 
@@ -144,13 +145,13 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
     # one extra record period so that every sample time lies inside the recorded span
     duration = max(tg.duration for tg in targets) + every * spec.settings.dt
     # one goal sequence per (command delay, run): environments share a sequence, not a batch
-    delays = list(dict.fromkeys(p.get("actuator_delay", 0.0) for p in sets))
+    delays = list(dict.fromkeys(p.get("actuator_delay") for p in sets))
     goals = np.empty((n_ticks, len(delays) * n_runs, targets[0].ticks.shape[1]))
     for d, delay in enumerate(delays):
         for r, tg in enumerate(targets):
             ticks = delay_commands(tg.ticks, delay, spec.settings.control_dt)
             goals[:, d * n_runs + r] = ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
-    goal_index = np.array([delays.index(p.get("actuator_delay", 0.0)) * n_runs + r
+    goal_index = np.array([delays.index(p.get("actuator_delay")) * n_runs + r
                            for p in sets for r in range(n_runs)])
     batch = BatchSimulator(model, [p for p in sets for _ in targets], spec.settings, threads=spec.threads)
     # a run's rest state depends only on its encoder offsets and the ends' rounding: made once each
@@ -250,7 +251,7 @@ def start_pose_sensitivity(spec: ObjectiveSpec, r: np.ndarray) -> tuple[np.ndarr
     Returns:
         ``(m, 3 n_runs)`` derivatives of ``r`` with respect to every run's (dx, dy, dyaw), and
         the ``(3 n_runs,)`` standard uncertainties of those start-pose coordinates
-        (:class:`integrators.runs.InitialPose`).
+        (:class:`integrators.simulate.InitialPose`).
     """
     scale = spec.weights.head_scale_m
     J = np.zeros((r.size, 3 * len(spec.targets)))
@@ -271,7 +272,46 @@ def start_pose_sensitivity(spec: ObjectiveSpec, r: np.ndarray) -> tuple[np.ndarr
     return J, std
 
 
-def scalar_terms(spec: ObjectiveSpec, sim: Simulated) -> dict[str, float]:
+@dataclass(frozen=True)
+class ObjectiveTerms:
+    """The paper's reward terms for one parameter vector, means over the runs (Eqs. 7 and 8).
+
+    Attributes:
+        head_final_m: final head position error [m]; head_mean_m: mean head position error [m].
+        joint_rmse_rad: joint RMSE [rad]; cpg_sq: fitted CPG amplitude and phase error [rad^2].
+        external, internal: the weighted head terms and the weighted joint terms;
+        total: their sum, the scalar objective.
+    """
+
+    head_final_m: float
+    head_mean_m: float
+    joint_rmse_rad: float
+    cpg_sq: float
+    external: float
+    internal: float
+    total: float
+
+    @classmethod
+    def weighted(cls, head_final_m: float, head_mean_m: float, joint_rmse_rad: float, cpg_sq: float,
+                 w: "Weights") -> "ObjectiveTerms":
+        """The terms with their external, internal and total sums under the weights ``w``."""
+        external = w.final_head * head_final_m + w.mean_head * head_mean_m
+        internal = w.joint_rmse * joint_rmse_rad + w.cpg * cpg_sq
+        return cls(head_final_m, head_mean_m, joint_rmse_rad, cpg_sq, external, internal, external + internal)
+
+    def observed(self) -> np.ndarray:
+        """(4,) the unweighted terms, in the order of the fields (what a PPO state may carry)."""
+        return np.array([self.head_final_m, self.head_mean_m, self.joint_rmse_rad, self.cpg_sq])
+
+    def to_json(self) -> dict[str, float]:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, float]) -> "ObjectiveTerms":
+        return cls(**{f.name: float(data[f.name]) for f in dataclasses.fields(cls)})
+
+
+def scalar_terms(spec: ObjectiveSpec, sim: Simulated) -> ObjectiveTerms:
     """The paper's reward terms for one parameter vector (means over runs)."""
     finals, means, rmses, cpgs = [], [], [], []
     for tg, head, q in zip(spec.targets, sim.head_xy, sim.q):
@@ -284,16 +324,11 @@ def scalar_terms(spec: ObjectiveSpec, sim: Simulated) -> dict[str, float]:
         a_s, p_s = cpg_fit(tg.t_samples, q, tg.freq_hz)
         dphi = np.angle(np.exp(1j * (p_s - p_m)))
         cpgs.append(float(np.mean((a_s - a_m) ** 2 + dphi ** 2)))
-    w = spec.weights
-    terms = {"head_final_m": float(np.mean(finals)), "head_mean_m": float(np.mean(means)),
-             "joint_rmse_rad": float(np.mean(rmses)), "cpg_sq": float(np.mean(cpgs))}
-    terms["external"] = w.final_head * terms["head_final_m"] + w.mean_head * terms["head_mean_m"]
-    terms["internal"] = w.joint_rmse * terms["joint_rmse_rad"] + w.cpg * terms["cpg_sq"]
-    terms["total"] = terms["external"] + terms["internal"]
-    return terms
+    return ObjectiveTerms.weighted(float(np.mean(finals)), float(np.mean(means)), float(np.mean(rmses)),
+                                   float(np.mean(cpgs)), spec.weights)
 
 
-def _evaluate_chunk(job: tuple[ObjectiveSpec, np.ndarray, bool]) -> list[np.ndarray | dict[str, float]]:
+def _evaluate_chunk(job: tuple[ObjectiveSpec, np.ndarray, bool]) -> list[np.ndarray | ObjectiveTerms]:
     spec, X, want_residuals = job
     sims = simulate_batch(spec, X)
     return [residual_vector(spec, s) if want_residuals else scalar_terms(spec, s) for s in sims]
@@ -382,10 +417,10 @@ class Objective:
         """Residuals that are motion-capture gaps (:func:`head_gaps`)."""
         return head_gaps(self.spec)
 
-    def terms(self, X: np.ndarray) -> list[dict[str, float]]:
-        """The paper's reward terms (dicts) for each row of X."""
+    def terms(self, X: np.ndarray) -> list[ObjectiveTerms]:
+        """The paper's reward terms for each row of X."""
         return self._map(X, False)
 
     def __call__(self, x: np.ndarray) -> float:
         """Scalar objective (external + internal) of one parameter vector."""
-        return self.terms(np.atleast_2d(x))[0]["total"]
+        return self.terms(np.atleast_2d(x))[0].total

@@ -192,7 +192,30 @@ def read_motive_csv(path: str | Path) -> MotiveTake:
     if not rows:
         raise InputError(f"{path}: file is empty; expected an OptiTrack Motive CSV export")
     info = _info_row(path, rows[0])
+    scale, rot, up_axis, units, frame_rate = _export_settings(path, info)
+    table, labels, time_col, columns = _motive_table(path, rows)
+    times = table.floats(labels[time_col])
+    bad = first_non_increasing(times)
+    if bad is not None:
+        raise InputError(
+            f"{path}: column {labels[time_col]!r}, row {table.rows[bad]}: time {times[bad]:g} s is "
+            f"not after the previous frame's {times[bad - 1]:g} s"
+        )
+    return MotiveTake(
+        times=times,
+        frames=table.floats(labels[0]).astype(int),
+        bodies=_rigid_bodies(table, labels, columns, times.size, scale, rot),
+        frame_rate=frame_rate,
+        up_axis=up_axis,
+        length_units=units,
+        info=info,
+        source=path,
+    )
 
+
+def _export_settings(path: Path, info: dict[str, str]) -> tuple[float, np.ndarray, str, str, float]:
+    """(metres per length unit, rotation into the Z-up world, up axis, length unit, frame rate
+    [Hz]) from the export's first row; errors name the setting a take this reader cannot use has."""
     rotation_type = info.get("Rotation Type", "Quaternion")
     if rotation_type.lower() != "quaternion":
         raise InputError(
@@ -207,18 +230,26 @@ def read_motive_csv(path: str | Path) -> MotiveTake:
         raise InputError(
             f"{path}: Length Units is {units!r}; expected one of Meters, Centimeters, Millimeters"
         )
-    scale = LENGTH_UNITS_M[units.lower()]
     up_axis = info.get("Up Axis", "Y").upper()
     if up_axis not in ("Y", "Z"):
         raise InputError(f"{path}: Up Axis is {info['Up Axis']!r}; expected 'Y' or 'Z'")
-    rot = Y_UP_TO_Z_UP if up_axis == "Y" else np.eye(3)
     try:
         frame_rate = float(info.get("Export Frame Rate", "nan"))
     except ValueError:
         raise InputError(
             f"{path}: Export Frame Rate {info['Export Frame Rate']!r} is not a number"
         ) from None
+    rot = Y_UP_TO_Z_UP if up_axis == "Y" else np.eye(3)
+    return LENGTH_UNITS_M[units.lower()], rot, up_axis, units, frame_rate
 
+
+#: A rigid body's columns by (``"Position"``/``"Rotation"``, axis): their indices in the export.
+BodyColumns = dict[tuple[str, str], int]
+
+
+def _motive_table(path: Path, rows: list[list[str]]) -> tuple[CsvTable, list[str], int, dict[str, BodyColumns]]:
+    """The frames below the header rows as a table, its column labels, the time column's index
+    and each rigid body's columns by (``"Position"``/``"Rotation"``, axis)."""
     frame_idx = next(
         (i for i, row in enumerate(rows) if row and row[0].strip() == "Frame"), None
     )
@@ -234,7 +265,7 @@ def read_motive_csv(path: str | Path) -> MotiveTake:
     if time_col is None:
         raise InputError(f"{path}: row {frame_idx + 1}: no 'Time (Seconds)' column")
 
-    columns: dict[str, dict[tuple[str, str], int]] = {}
+    columns: dict[str, BodyColumns] = {}
     for j in range(width):
         if types[j].lower() == "rigid body" and kinds[j] in ("Rotation", "Position"):
             slots = columns.setdefault(names[j], {})
@@ -267,45 +298,31 @@ def read_motive_csv(path: str | Path) -> MotiveTake:
         cells={labels[j]: cell_columns[j] for j in range(width)},
         rows=np.array([number for number, _ in data]),
     )
+    return table, labels, time_col, columns
 
-    times = table.floats(labels[time_col])
-    bad = first_non_increasing(times)
-    if bad is not None:
-        raise InputError(
-            f"{path}: column {labels[time_col]!r}, row {table.rows[bad]}: time {times[bad]:g} s is "
-            f"not after the previous frame's {times[bad - 1]:g} s"
-        )
-    frames = table.floats(labels[0]).astype(int)
 
+def _rigid_bodies(table: CsvTable, labels: list[str], columns: dict[str, BodyColumns], n_frames: int, scale: float,
+                  rot: np.ndarray) -> dict[str, RigidBodyTrack]:
+    """Each rigid body's positions [m] and quaternions (w, x, y, z) in the Z-up world."""
     q_rot = quat_from_matrix(rot)
     q_rot_inv = q_rot * np.array([1.0, -1.0, -1.0, -1.0])
     bodies: dict[str, RigidBodyTrack] = {}
     for name, cols in columns.items():
         pos_cols = [cols.get(("Position", axis)) for axis in "XYZ"]
         if None in pos_cols:
-            raise InputError(f"{path}: rigid body {name!r} has no Position X, Y, Z columns")
+            raise InputError(f"{table.path}: rigid body {name!r} has no Position X, Y, Z columns")
         pos = np.column_stack([table.floats(labels[j], allow_missing=True) for j in pos_cols])
         pos[np.isnan(pos).any(axis=1)] = np.nan
         rot_cols = [cols.get(("Rotation", axis)) for axis in "XYZW"]
         if None in rot_cols:
-            quats = np.full((times.size, 4), np.nan)
+            quats = np.full((n_frames, 4), np.nan)
         else:
             xyzw = np.column_stack([table.floats(labels[j], allow_missing=True) for j in rot_cols])
             quats = quat_multiply(
-                quat_multiply(q_rot, _quaternions(path, name, xyzw, table.rows)), q_rot_inv
+                quat_multiply(q_rot, _quaternions(table.path, name, xyzw, table.rows)), q_rot_inv
             )
         bodies[name] = RigidBodyTrack(name=name, positions=scale * pos @ rot.T, quats=quats)
-
-    return MotiveTake(
-        times=times,
-        frames=frames,
-        bodies=bodies,
-        frame_rate=frame_rate,
-        up_axis=up_axis,
-        length_units=units,
-        info=info,
-        source=path,
-    )
+    return bodies
 
 
 def read_joint_log(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:

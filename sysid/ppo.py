@@ -46,7 +46,7 @@ from cobra_model.parameters import ModelParameters
 from sysid.env import ParameterTuningEnv
 from sysid.executor import LocalExecutor
 from sysid.lsq import FitResult, FitStatus, ParameterReport
-from sysid.objective import Objective
+from sysid.objective import Objective, ObjectiveTerms
 
 #: A unit coordinate closer than this to 0 or 1 counts as at a bound (as in :mod:`sysid.lsq`).
 AT_BOUND_UNIT = 1e-3
@@ -155,7 +155,7 @@ class _Best:
     """The best parameter vector over all environments."""
 
     z: np.ndarray
-    terms: dict[str, float]
+    terms: ObjectiveTerms
     evaluations: int
 
 
@@ -177,7 +177,7 @@ class _TrainingMonitor(BaseCallback):
     def collect_best(self) -> _Best:
         """Ask every environment for its best; keep the lowest total (first environment on ties)."""
         bests = self.training_env.env_method("best")
-        z, terms, _ = min(bests, key=lambda b: b[1]["total"])
+        z, terms, _ = min(bests, key=lambda b: b[1].total)
         self.best = _Best(z, terms, sum(b[2] for b in bests))
         return self.best
 
@@ -205,11 +205,11 @@ class _TrainingMonitor(BaseCallback):
         best = self.collect_best()
         mean_reward = float(np.mean(self._returns)) if self._returns else float("nan")
         self._returns = []
-        self.curve.append((self.num_timesteps, mean_reward, best.terms["total"]))
+        self.curve.append((self.num_timesteps, mean_reward, best.terms.total))
         if not self.history or not np.array_equal(self.history[-1][2], best.z):
             self.history.append((time.perf_counter() - self.t_start, self.num_timesteps, best.z.copy()))
         if self.progress is not None:
-            self.progress(self.num_timesteps, best.terms["total"], mean_reward)
+            self.progress(self.num_timesteps, best.terms.total, mean_reward)
         return best
 
 
@@ -272,16 +272,16 @@ def fit_ppo(objective: Objective, *, budget_seconds: float | None = None, total_
             monitor = _TrainingMonitor(t_start, budget_seconds, progress)
             model.learn(total_timesteps, callback=monitor)
             best = monitor.finish()
-            initial_terms: dict[str, float] = vec_env.get_attr("reference_terms")[0]
+            initial_terms: ObjectiveTerms = vec_env.get_attr("reference_terms")[0]
             timesteps = model.num_timesteps
         finally:
             vec_env.close()
     fitted = objective.params.from_unit(best.z)
     if curve_png is not None:
-        plot_reward_curve(monitor.curve, curve_png, initial_total=initial_terms["total"])
+        plot_reward_curve(monitor.curve, curve_png, initial_total=initial_terms.total)
     return FitResult(
         fitted, FitStatus.BUDGET if monitor.over_budget else FitStatus.MAX_ITERATIONS,
-        best.terms["total"], initial_terms["total"], [], _report(objective.params, fitted, best.z),
+        best.terms.total, initial_terms.total, [], _report(objective.params, fitted, best.z),
         np.empty(0), best.evaluations, time.perf_counter() - t_start, method="ppo",
         extra={"reward_curve": monitor.curve, "timesteps": timesteps, "initial_terms": initial_terms,
                "best_history": [(sec, steps, objective.params.from_unit(z)) for sec, steps, z in monitor.history],

@@ -8,12 +8,12 @@ from __future__ import annotations
 import html
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
 from cobra_model.runs import Run
-from integrators.runs import simulate_like
+from integrators.simulate import simulate_like
 from cobra_model.parameters import ModelParameters
 from sysid.metrics import GapReport, compare_runs
 
@@ -99,16 +99,44 @@ def head_text(before: float | None, after: float | None) -> str:
     return f"{before:.4f} -> {after:.4f} m"
 
 
-def gap_summary(held: Sequence[HeldOut], which: str) -> dict:
-    """``cobra compare`` metrics of each held-out run (``which``: "before" or "after") and their mean
-    (a head metric's mean over the runs that have it; None when none has)."""
-    per_run = {h.name: getattr(h, f"gap_{which}").to_json_dict() for h in held}
-    mean: dict = {}
-    for k in ("head_final_error_m", "head_mean_error_m"):  # joint-only runs have no head metrics
-        values = [g[k] for g in per_run.values() if g[k] is not None]
-        mean[k] = float(np.mean(values)) if values else None
-    mean["joint_rmse_rad"] = float(np.mean([g["joint_rmse_rad"]["mean"] for g in per_run.values()]))
-    return {"mean": mean, "runs": per_run}
+@dataclass(frozen=True)
+class GapSummary:
+    """``cobra compare`` metrics of a set of held-out runs and their means.
+
+    Attributes:
+        head_final_error_m, head_mean_error_m: means over the runs that have a head pose [m]
+            (None when none has: joint-only runs).
+        joint_rmse_rad: mean over the runs of their mean joint RMSE [rad].
+        runs: each run's ``cobra compare`` metrics (JSON form), by run name.
+    """
+
+    head_final_error_m: float | None
+    head_mean_error_m: float | None
+    joint_rmse_rad: float
+    runs: dict[str, dict]
+
+    @classmethod
+    def of(cls, gaps: Mapping[str, GapReport]) -> "GapSummary":
+        """The summary of the gaps of named runs."""
+        per_run = {name: g.to_json_dict() for name, g in gaps.items()}
+
+        def mean(key: str) -> float | None:
+            values = [g[key] for g in per_run.values() if g[key] is not None]
+            return float(np.mean(values)) if values else None
+
+        return cls(mean("head_final_error_m"), mean("head_mean_error_m"),
+                   float(np.mean([g["joint_rmse_rad"]["mean"] for g in per_run.values()])), per_run)
+
+    def to_json(self) -> dict:
+        """``{"mean": {...}, "runs": {...}}`` as in ``diagnosis.json``."""
+        return {"mean": {"head_final_error_m": self.head_final_error_m, "head_mean_error_m": self.head_mean_error_m,
+                         "joint_rmse_rad": self.joint_rmse_rad}, "runs": self.runs}
+
+    @classmethod
+    def from_json(cls, data: Mapping[str, Any]) -> "GapSummary":
+        """Inverse of :meth:`to_json`."""
+        m = data["mean"]
+        return cls(m["head_final_error_m"], m["head_mean_error_m"], m["joint_rmse_rad"], dict(data["runs"]))
 
 
 def held_out_figures(held: Sequence[HeldOut], out_dir: Path, labels: tuple[str, str], report: HtmlReport) -> None:

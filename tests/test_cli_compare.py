@@ -11,7 +11,7 @@ from cobra_cli.cmd_compare import PLOT_FILES
 from cobra_cli.main import main
 from cobra_model.gait import SidewindingGait
 from cobra_model.runs import NUM_JOINTS, Run, write_run
-from integrators.runs import simulate_gait
+from integrators.simulate import simulate_gait
 from sysid.metrics import compare_runs
 from sysid.plots import (
     plot_error_bars,

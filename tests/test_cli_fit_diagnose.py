@@ -8,12 +8,13 @@ import numpy as np
 import pytest
 
 from cobra_cli.main import main
+from sysid.diagnose import NamedEffect
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from cobra_model.runs import Run, write_run
-from integrators.runs import simulate_gait
+from integrators.simulate import simulate_gait
 from sysid.effects import EffectLibrary
-from sysid.runsets import expand
+from sysid.splits import expand
 
 TRUTH = ModelParameters.nominal().with_values(mu_c=0.22)
 
@@ -66,9 +67,9 @@ def test_diagnose_writes_report_json_and_a_usable_model(data, tmp_path, capsys):
     assert set(doc["gap_before"]["mean"]) >= {"head_final_error_m", "head_mean_error_m", "joint_rmse_rad"}
     # the runs hide 0.4 N m of gearbox Coulomb friction: that is what is named, near its value
     assert [e["name"] for e in doc["effects"]] == ["joint_coulomb_friction"] and doc["structural"] == []
-    effect = doc["effects"][0]
-    assert set(effect) >= {"name", "params", "evidence", "held_out_improvement"}
-    assert abs(effect["params"]["joint_coulomb"]["value"] - 0.4) < 0.05
+    effect = NamedEffect.from_json(doc["effects"][0])   # the file holds the typed result
+    assert effect.parameter == "joint_coulomb" and abs(effect.value - 0.4) < 0.05
+    assert effect.held_out_cost_reduction > 0.5
     assert (out / "report.html").is_file() and (out / "signature.png").is_file()
     # the augmented model is a parameter file the other commands accept
     sim = tmp_path / "sim.csv"

@@ -9,7 +9,7 @@ import pytest
 from cobra_model import SidewindingGait
 from cobra_model.errors import InputError
 from cobra_model.runs import interpolate_rows
-from integrators.runs import simulate_gait
+from integrators.simulate import simulate_gait
 from sysid.clock_alignment import estimate_clock_offset
 from cobra_model.servo import PULSES_PER_REV
 from sysid.optitrack import MotiveTake, RigidBodyTrack

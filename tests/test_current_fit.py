@@ -10,7 +10,7 @@ import pytest
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from hardware.units import current_units_to_amp
-from integrators.runs import simulate_gait
+from integrators.simulate import simulate_gait
 from cobra_model.servo import PULSES_PER_REV
 from sysid.lsq import fit_lsq
 from sysid.objective import Objective, Weights

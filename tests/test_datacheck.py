@@ -13,7 +13,7 @@ from cobra_cli.main import main
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from cobra_model.runs import Run, write_run
-from integrators.runs import simulate_gait
+from integrators.simulate import simulate_gait
 from sysid.datacheck import (FLAT_LOADING, DataCheck, analyse_jacobian, apply, check_runs, inspect_run,
                              unit_jacobian)
 from sysid.effects import EffectLibrary

@@ -1,6 +1,6 @@
 """The discrepancy workflow on runs MuJoCo made: an effect with a joint-side signature is named.
 
-MuJoCo's twin (``sysid.mujoco_runs``: body-aligned capsule contacts, its own solver and soft
+MuJoCo's twin (``sysid.mujoco_recording``: body-aligned capsule contacts, its own solver and soft
 contact, linearised saturating servos) with the robot's parameter error of
 ``tests/test_diagnose_names.py`` and one effect the library knows, expressed on MuJoCo's side:
 commands delayed by a 40 ms buffer, every encoder reading 0.03 rad more than the joint angle
@@ -21,7 +21,7 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from sysid.dataset import RunPlan
 from sysid.diagnose import DiagnoseConfig, diagnose
-from sysid.mujoco_runs import record_mujoco, twin_options
+from sysid.mujoco_recording import record_mujoco, twin_options
 
 pytestmark = pytest.mark.slow
 pytest.importorskip("mujoco")
@@ -49,10 +49,11 @@ def test_the_effect_added_in_mujoco_is_named_with_its_value(option):
     runs = [record_mujoco(p, options, rng, model, truth) for p in plans]
     d = diagnose(runs[:2], runs[2:], params=ModelParameters.nominal().with_frozen(free=FREE),
                  config=DiagnoseConfig(max_effects=1))
-    assert [e["name"] for e in d.effects] == [effect], [c.to_json() for c in d.rounds[0][:3]]
+    assert [e.name for e in d.effects] == [effect], [c.to_json() for c in d.rounds[0][:3]]
     assert not d.structural
-    low, high = d.effects[0]["params"][parameter]["ci95"]
+    assert d.effects[0].parameter == parameter
+    low, high = d.effects[0].ci95
     # measured: delay [0.0387, 0.0404] s, offset [0.0265, 0.0301] rad, friction [0.187, 0.342] N m
     assert low <= value <= high
     # the joints follow MuJoCo's better once the effect is in
-    assert d.gap_after["mean"]["joint_rmse_rad"] < left * d.gap_before["mean"]["joint_rmse_rad"]
+    assert d.gap_after.joint_rmse_rad < left * d.gap_before.joint_rmse_rad

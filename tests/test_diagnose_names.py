@@ -47,15 +47,15 @@ def diagnosed(effect: str | None):
 def test_the_hidden_effect_is_named_first(effect):
     d = diagnosed(effect)
     assert d.effects, f"nothing named; candidates: {[c.to_json() for c in d.rounds[0][:3]]}"
-    assert d.effects[0]["name"] == effect
+    assert d.effects[0].name == effect
     assert not d.structural
     # naming it more than halves the held-out cost (what the workflow judges by: head and joints)
-    assert d.effects[0]["evidence"]["held_out_cost_reduction"] > 0.5
+    assert d.effects[0].held_out_cost_reduction > 0.5
     # and the held-out head error halves, unless the base fit already left it at the floor that
     # the measured start pose sets (0.2 deg of heading over a 3 s run's ~0.6 m path: 2 mm, plus
     # the 0.5 mm mocap noise): a torque limit is largely absorbed by the actuator parameters in
     # the head path (measured 1.4 mm before, 2.5 mm after), its evidence is in the joints
-    before, after = (g["mean"]["head_final_error_m"] for g in (d.gap_before, d.gap_after))
+    before, after = d.gap_before.head_final_error_m, d.gap_after.head_final_error_m
     assert after < max(0.5 * before, HEAD_FLOOR_M)
 
 

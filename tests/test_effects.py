@@ -8,7 +8,7 @@ import pytest
 
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
-from integrators.runs import simulate_gait
+from integrators.simulate import simulate_gait
 from sysid.effects import EFFECTS, EffectLibrary, parse_effects
 from sysid.signature import localise
 

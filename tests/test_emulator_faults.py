@@ -30,7 +30,7 @@ from hardware.faults import Fault, FaultKind, parse_fault
 from hardware.plant import KinematicPlant
 from hardware.recorder import RecordResult, StopReason, record_gait
 from hardware.runwriter import UNFINISHED_NOTE
-from integrators.runs import simulate_like
+from integrators.simulate import simulate_like
 from sysid.metrics import compare_runs
 
 GAIT = SidewindingGait(freq_hz=0.5, ramp_s=0.5)

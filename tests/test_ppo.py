@@ -13,10 +13,10 @@ from gymnasium.utils.env_checker import check_env
 
 from cobra_model.gait import SidewindingGait
 from cobra_model.parameters import ModelParameters
-from integrators.runs import simulate_gait, simulate_like
+from integrators.simulate import simulate_gait, simulate_like
 from sysid.env import ParameterTuningEnv
 from sysid.lsq import FitStatus
-from sysid.objective import Objective
+from sysid.objective import Objective, ObjectiveTerms
 from sysid.ppo import fit_ppo, single_threaded
 
 FREE = ["mu_c", "joint_damping"]
@@ -35,16 +35,15 @@ class BowlObjective:
     target: np.ndarray
     diverge_above: float = 2.0
 
-    def terms(self, X: np.ndarray) -> list[dict[str, float]]:
-        """The objective's term dicts for the rows of X (physical free-parameter values)."""
+    def terms(self, X: np.ndarray) -> list[ObjectiveTerms]:
+        """The objective's terms for the rows of X (physical free-parameter values)."""
         out = []
         for x in np.atleast_2d(X):
             z = self.params.update_from_vector(x).to_unit()
             if z[0] > self.diverge_above:
                 raise RuntimeError("diverged")
             err = float(np.abs(z - self.target).sum())
-            out.append({"head_final_m": err, "head_mean_m": err / 2, "joint_rmse_rad": err / 4, "cpg_sq": 0.0,
-                        "external": err, "internal": 0.0, "total": err})
+            out.append(ObjectiveTerms(err, err / 2, err / 4, 0.0, external=err, internal=0.0, total=err))
         return out
 
 
@@ -107,7 +106,7 @@ def test_invalid_or_diverging_parameters_are_not_applied() -> None:
     z0 = params.to_unit()
     bowl = BowlObjective(params, z0, diverge_above=z0[1 - mu_c] + 0.05)
     env = ParameterTuningEnv(bowl, failure_factor=3.0)
-    reference = env.reference_terms["total"]
+    reference = env.reference_terms.total
     env.reset(seed=0)
     up = np.zeros(2, dtype=np.float32)
     up[mu_c] = 1.0                                                # mu_c would exceed mu_s

@@ -8,7 +8,7 @@ import pytest
 
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.runs import Run
-from integrators.runs import InitialPose, StartObservation, command_ticks
+from integrators.simulate import InitialPose, StartObservation, command_ticks
 from integrators.simulator import Simulator
 from sysid.dataset import RunPlan, record
 from sysid.objective import Objective
@@ -124,7 +124,7 @@ def test_a_run_is_reproduced_from_where_its_joints_really_were():
     fitted with the joints there, so the reproduction follows it; from the raw readings every
     joint would start 0.05 rad off and the fitted heading 7 deg off."""
     from cobra_model import SidewindingGait
-    from integrators.runs import simulate_gait, simulate_like
+    from integrators.simulate import simulate_gait, simulate_like
     from sysid.effects import EffectLibrary
     from sysid.metrics import compare_runs
 

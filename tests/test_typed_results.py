@@ -1,0 +1,73 @@
+"""Results travel as dataclasses: each survives a trip through JSON text unchanged."""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cobra_model.parameters import EFFECT_PARAMETERS, ModelParameters
+from sysid.diagnose import NamedEffect, StructuralDifference
+from sysid.intervals import Whiteness
+from sysid.lsq import FitResult, FitStatus, IterationLog, ParameterReport
+from sysid.objective import ObjectiveTerms, Weights
+from sysid.report import GapSummary
+
+
+def through_text(doc: dict) -> dict:
+    """``doc`` written as JSON text and read back (what a file on disk holds)."""
+    return json.loads(json.dumps(doc))
+
+
+def test_named_effect_and_structural_difference_round_trip():
+    effect = NamedEffect("joint_coulomb_friction", "joint_coulomb", 0.31, "N m", (0.27, 0.35), 0.62, 3, -41.5, 0.8,
+                         "joint residuals on all joints")
+    assert NamedEffect.from_json(through_text(effect.to_json())) == effect
+    assert effect.to_json()["params"] == {"joint_coulomb": {"value": 0.31, "unit": "N m", "ci95": [0.27, 0.35]}}
+    no_interval = NamedEffect("backlash", "backlash", 0.02, "rad", None, 0.3, 2, -5.0, 0.5, "lag")
+    assert NamedEffect.from_json(through_text(no_interval.to_json())) == no_interval
+    proxy = StructuralDifference("anisotropic_ground_friction", 0.3, "1", "outside [0.5, 3]", 0.4, 1)
+    assert StructuralDifference.from_json(through_text(proxy.to_json())) == proxy
+
+
+def test_gap_summary_means_and_round_trip():
+    runs = {"a": {"head_final_error_m": 0.02, "head_mean_error_m": 0.01, "joint_rmse_rad": {"mean": 0.003}},
+            "b": {"head_final_error_m": 0.04, "head_mean_error_m": 0.03, "joint_rmse_rad": {"mean": 0.005}}}
+    summary = GapSummary(0.03, 0.02, 0.004, runs)
+    back = GapSummary.from_json(through_text(summary.to_json()))
+    assert back == summary and back.head_final_error_m == pytest.approx(0.03)
+
+
+def test_objective_terms_sum_by_the_weights_and_round_trip():
+    w = Weights()
+    terms = ObjectiveTerms.weighted(0.05, 0.03, 0.004, 0.01, w)
+    assert terms.external == pytest.approx(w.final_head * 0.05 + w.mean_head * 0.03)
+    assert terms.total == pytest.approx(terms.external + terms.internal)
+    assert np.array_equal(terms.observed(), [0.05, 0.03, 0.004, 0.01])
+    assert ObjectiveTerms.from_json(through_text(terms.to_json())) == terms
+
+
+def test_fit_result_round_trip():
+    params = ModelParameters.nominal().with_values(mu_c=0.25)
+    report = [ParameterReport("mu_c", "1", 0.3, 0.3, 0.25, 0.24, 0.26, False, True, "", 0.245, 0.255)]
+    fit = FitResult(params, FitStatus.CONVERGED_COST, 1.5, 10.0,
+                    [IterationLog(0, 10.0, 1.5, True, 1e-3, 0.2, 5, 0.4, 1.5)], report, np.array([3.0, 0.5]),
+                    12, 2.5, residual_count=400,
+                    residual_whiteness=Whiteness(50.0, 20, 0.001, 10, 0.6, 2, False, "not white"),
+                    interval_method="HAC", report_without_current=report)
+    back = FitResult.from_json(through_text(fit.to_json()), params)
+    for name in ("status", "cost", "initial_cost", "log", "report", "evaluations", "seconds", "method",
+                 "residual_count", "residual_whiteness", "interval_method", "report_without_current"):
+        assert getattr(back, name) == getattr(fit, name), name
+    assert np.array_equal(back.singular_values, fit.singular_values)
+    assert fit.to_json()["intervals"] == {"mu_c": [0.24, 0.26]}
+
+
+def test_an_effect_parameter_a_set_lacks_reads_as_inactive():
+    nominal = ModelParameters.nominal()
+    for p in EFFECT_PARAMETERS:
+        assert nominal.get(p.name) == p.value
+    assert np.all(nominal.per_joint("torque_limit") == 9.9)   # the stall torque: no limit below it
+    assert nominal.get("joint_coulomb", 0.2) == 0.2            # an explicit default still wins
+    with pytest.raises(Exception, match="unknown parameter 'no_such'"):
+        nominal.get("no_such")
