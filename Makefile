@@ -25,7 +25,7 @@ test: $(STAMP)
 
 # Every benchmark, one after another (never two at once: they time themselves). Hours in all:
 # the MuJoCo fits and the diagnosis accuracy dominate. Each writes benchmarks/results/ or prints
-# its table (fit_speed, recovery and diagnose_accuracy print only, for now).
+# its table (recovery and diagnose_accuracy print only, for now).
 bench: $(STAMP)
 	$(PY) benchmarks/sim_speed.py
 	$(PY) benchmarks/fault_matrix.py

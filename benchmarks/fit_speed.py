@@ -1,9 +1,12 @@
 """Identification speed and quality on the shipped reference dataset: least squares vs PPO.
 
-Prints, in one run: objective evaluations per second one at a time vs batched; for each method
+Measures, in one run: objective evaluations per second one at a time vs batched; for each method
 the wall time, the objective evaluations it used and the held-out final head error per gait
 before (nominal) and after; and when PPO's best parameters first reached the least-squares
-held-out error (summed over the held-out runs), if they did. PPO's progress goes to stderr. Run:
+held-out error (summed over the held-out runs), if they did. PPO runs with seed 0 (the seed its
+settings were chosen on: ``sysid.ppo.PPOSettings``). Writes the tables to
+``benchmarks/results/fit_speed.{json,md}`` and prints them; PPO's progress goes to stderr. Run
+alone on the machine (it times itself):
 ``.venv/bin/python benchmarks/fit_speed.py [--lsq-iterations N] [--ppo-timesteps N]``.
 """
 from __future__ import annotations
@@ -13,6 +16,7 @@ import time
 
 import numpy as np
 
+from _results import write_results
 from cobra_model import ModelParameters
 from held_out import final_head_errors, ppo_progress, time_to_reach
 from sysid.dataset import DATA_DIR, load_manifest
@@ -42,11 +46,13 @@ def main() -> None:
     nominal = ModelParameters.nominal()
     objective = Objective(train, nominal)
     one, batched = evals_per_second(objective, 1), evals_per_second(objective, 10)
-    print(f"# {len(train)} training runs, {len(validation)} held out; {len(nominal.free_names)} free parameters\n")
-    print("| objective evaluation | evaluations / s |")
-    print("|---|---:|")
-    print(f"| one at a time | {one:.2f} |")
-    print(f"| batched, 10 parameter vectors | {batched:.2f} ({batched / one:.1f}x) |\n")
+    lines = [f"# Identification speed on the reference dataset", "",
+             f"{len(train)} training runs, {len(validation)} held out; {len(nominal.free_names)} free parameters; "
+             f"least squares with {args.lsq_iterations} Jacobians per horizon stage at most, PPO "
+             f"{args.ppo_timesteps} timesteps (seed 0).", "",
+             "| objective evaluation | evaluations / s |", "|---|---:|",
+             f"| one at a time | {one:.2f} |", f"| batched, 10 parameter vectors | {batched:.2f} ({batched / one:.1f}x) |",
+             ""]
     rows = []
     t0 = time.perf_counter()
     lsq = fit_lsq(Objective(train, nominal), max_iterations=args.lsq_iterations)
@@ -59,17 +65,28 @@ def main() -> None:
     held = {name: evaluate_held_out(validation, nominal, res.params) for name, _, res in rows}
     freqs = [h.freq_hz for h in next(iter(held.values()))]
     head = " | ".join(f"{f:g} Hz" for f in freqs)
-    print(f"| method | wall [s] | evaluations | status | held-out final head error [m], nominal -> fitted: {head} |")
-    print("|---|---:|---:|---|" + "---|" * len(freqs))
+    lines += [f"| method | wall [s] | evaluations | status | held-out final head error [m], nominal -> fitted: "
+              f"{head} |", "|---|---:|---:|---|" + "---|" * len(freqs)]
+    records = []
     for name, wall, res in rows:
-        cells = " | ".join(f"{h.gap_before.to_json_dict()['head_final_error_m']:.3f} -> "
-                           f"{h.gap_after.to_json_dict()['head_final_error_m']:.3f}" for h in held[name])
-        print(f"| {name} | {wall:.0f} | {res.evaluations} | {res.status.value} | {cells} |")
+        pairs = [(h.gap_before.head.final, h.gap_after.head.final) for h in held[name]]
+        cells = " | ".join(f"{b:.3f} -> {a:.3f}" for b, a in pairs)
+        lines.append(f"| {name} | {wall:.0f} | {res.evaluations} | {res.status.value} | {cells} |")
+        records.append({"method": name, "wall_s": wall, "evaluations": res.evaluations, "status": res.status.value,
+                        "held_out_final_head_m": {f"{f:g}": {"nominal": b, "fitted": a}
+                                                  for f, (b, a) in zip(freqs, pairs)}})
     target = final_head_errors(validation, lsq.params).sum()
     reach = time_to_reach(validation, ppo.extra["best_history"], target)
-    print(f"\nPPO reached the least-squares held-out error (summed final head error {target:.4f} m): "
-          + (f"after {reach[0]:.0f} s ({reach[1]} timesteps)" if reach else
-             f"not within {rows[1][1]:.0f} s ({ppo.extra['timesteps']} timesteps)"))
+    lines += ["", f"PPO reached the least-squares held-out error (summed final head error {target:.4f} m): "
+              + (f"after {reach[0]:.0f} s ({reach[1]} timesteps)" if reach else
+                 f"not within {rows[1][1]:.0f} s ({ppo.extra['timesteps']} timesteps)")]
+    meta = {"train_runs": len(train), "held_out_runs": len(validation), "free": list(nominal.free_names),
+            "lsq_iterations_per_stage": args.lsq_iterations, "ppo_timesteps": args.ppo_timesteps, "ppo_seed": 0,
+            "evaluations_per_s": {"one": one, "batched_10": batched}, "lsq_target_summed_final_head_m": target,
+            "ppo_reached_lsq": {"seconds": reach[0], "timesteps": reach[1]} if reach else None}
+    md = "\n".join(lines)
+    write_results("fit_speed", records, meta, md)
+    print(md)
 
 
 if __name__ == "__main__":
