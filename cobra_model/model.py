@@ -282,6 +282,15 @@ class RobotModel:
                 q[3:7] = (x, y, z, w)
         return q
 
+    def on_ground(self, q: np.ndarray, rounding: float = 0.0) -> np.ndarray:
+        """``q`` with a floating root raised or lowered so that the lowest contact point is at
+        z = 0 (``rounding`` as in :meth:`contact_points`); ``q`` itself if the root is fixed or
+        there are no contact features."""
+        q = np.array(q, dtype=float)
+        if self.chain.floating and len(self.features):
+            q[2] -= self.contact_points(q, rounding)[:, 2].min()
+        return q
+
     def joint_positions(self, q: np.ndarray) -> np.ndarray:
         """Actuated joint angles [rad] from q."""
         return np.asarray(q)[self.nq - self.n_joints:]

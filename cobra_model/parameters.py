@@ -146,6 +146,14 @@ EFFECT_PARAMETERS: tuple[Parameter, ...] = (
 
 _FALLBACK: dict[str, Parameter] = {p.name: p for p in NOMINAL + EFFECT_PARAMETERS}
 
+
+def effect_parameter(name: str) -> Parameter:
+    """The effect parameter ``name`` of :data:`EFFECT_PARAMETERS`, at its inactive value."""
+    for p in EFFECT_PARAMETERS:
+        if p.name == name:
+            return p
+    raise InputError(f"unknown effect parameter {name!r}; known: {', '.join(p.name for p in EFFECT_PARAMETERS)}")
+
 #: Parameters that may be expanded to one value per joint.
 PER_JOINT_CAPABLE: tuple[str, ...] = ("armature", "joint_damping", "motor_km")
 

@@ -236,9 +236,7 @@ class Simulator:
             half = 0.5 * heading_rad
             base_quat_wxyz = np.array([np.cos(half), 0.0, 0.0, np.sin(half)])
         q = model.configuration(q_joints, np.array([head_xy[0], head_xy[1], 0.0]), base_quat_wxyz)
-        if model.chain.floating and len(model.features):
-            q[2] -= model.contact_points(q, self.ground[K.G_ROUND])[:, 2].min()
-        return self.state(q)
+        return self.state(model.on_ground(q, self.ground[K.G_ROUND]))
 
     # -- stepping ---------------------------------------------------------------------------
     def _raise(self, status: int, t: float, q: np.ndarray, v: np.ndarray) -> None:
@@ -268,8 +266,8 @@ class Simulator:
     def _stable_steps(self) -> str:
         """The largest stable steps for this model and parameters (:mod:`integrators.stability`)."""
         lim = stability.step_limits(self.model, self.params, self.settings.gains.p)
-        return (f"with these parameters the largest stable dt is {lim.dt:.3g} s (set by {lim.dt_reason}) and "
-                f"control_dt {lim.control_dt:.3g} s; this run used {self.settings.dt:g} s and "
+        return (f"with these parameters the largest stable dt is {lim.allowed_dt:.3g} s (set by {lim.dt_reason}) "
+                f"and control_dt {lim.allowed_control_dt:.3g} s; this run used {self.settings.dt:g} s and "
                 f"{self.settings.control_dt:g} s")
 
     def step(self, state: SimState, q_goal: np.ndarray, torque_on: np.ndarray | None = None) -> SimState:

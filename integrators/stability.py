@@ -69,12 +69,21 @@ def damper_step_limit(damping: float, mass: float) -> float:
 
 @dataclass(frozen=True)
 class StepLimits:
-    """The largest stable steps [s] and, for each, what sets it (a phrase naming the force and where)."""
+    """The linearised robot's largest stable steps [s] and, for each, what sets it (a phrase
+    naming the force and where); ``allowed_*`` are the steps :func:`check_steps` accepts."""
 
     dt: float
     dt_reason: str
     control_dt: float
     control_dt_reason: str
+
+    @property
+    def allowed_dt(self) -> float:
+        return MARGIN * self.dt
+
+    @property
+    def allowed_control_dt(self) -> float:
+        return MARGIN * self.control_dt
 
 
 def step_limits(model: RobotModel, params: ModelParameters, p_gain: int = 800,
@@ -90,9 +99,7 @@ def step_limits(model: RobotModel, params: ModelParameters, p_gain: int = 800,
     for a floating robot with contacts, where every contact touches).
     """
     if q is None:
-        q = model.configuration()
-        if model.chain.floating and len(model.features):
-            q[2] -= model.contact_points(q, params.get("contact_rounding"))[:, 2].min()
+        q = model.on_ground(model.configuration(), params.get("contact_rounding"))
     M = model.mass_matrix(q)
     D_inv = np.linalg.inv(M)
     K, C = np.zeros_like(M), np.zeros_like(M)
@@ -115,12 +122,13 @@ def step_limits(model: RobotModel, params: ModelParameters, p_gain: int = 800,
         K[nb:, nb:] += kp * np.eye(n)
         C[nb:, nb:] += np.diag(damping)
         where = f"on the {n} joints (lightest mode {inertia:.3g} kg m^2)"
-        terms.append((damper_step_limit(float(damping.min()), inertia),
-                       f"the motor's back-EMF and gearbox damping ({damping.min():.3g} N m s/rad) {where}"))
-        control = (damped_spring_step_limit(kp, float(damping.min()), inertia),
+        most = float(damping.max())  # the most damped joint binds: both limits fall with damping
+        terms.append((damper_step_limit(most, inertia),
+                      f"the motor's back-EMF and gearbox damping ({most:.3g} N m s/rad) {where}"))
+        control = (damped_spring_step_limit(kp, most, inertia),
                    f"the servo's position loop (P gain {p_gain}: {kp:.3g} N m/rad) {where}")
     single, reason = min(terms, key=lambda x: x[0])
-    dt = coupled_step_limit(M, K, C, upper=2.0 * single if np.isfinite(single) else 1.0)
+    dt = coupled_step_limit(M, K, C, upper=2.0 * single) if np.isfinite(single) else np.inf
     return StepLimits(dt, f"{reason}, coupled with the rest of the linearised robot", float(control[0]), control[1])
 
 
@@ -128,8 +136,8 @@ def coupled_step_limit(M: np.ndarray, K: np.ndarray, C: np.ndarray, upper: float
     """Largest step [s] (to 0.1 %) at which semi-implicit Euler on ``M x'' = -K x - C x'`` has no
     growing mode: the spectral radius of its update matrix
     ``[[I - h^2 M^-1 K, h (I - h M^-1 C)], [-h M^-1 K, I - h M^-1 C]]`` (on ``(x, v)``) is at most
-    1 (the rigid modes' eigenvalue 1 stays). Bisection below ``upper`` [s]."""
-    n = M.shape[0]
+    1 (the rigid modes' eigenvalue 1 stays). Bisection below ``upper`` [s]; ``upper`` itself
+    when the step is stable there (the limit is then at least that)."""
     MK, MC, eye = np.linalg.solve(M, K), np.linalg.solve(M, C), np.eye(M.shape[0])
 
     def stable(h: float) -> bool:
@@ -139,7 +147,7 @@ def coupled_step_limit(M: np.ndarray, K: np.ndarray, C: np.ndarray, upper: float
 
     lo, hi = 0.0, upper
     if stable(hi):
-        return float(hi) if n else np.inf
+        return float(hi)
     while hi - lo > 1e-3 * hi:
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if stable(mid) else (lo, mid)
@@ -168,13 +176,13 @@ def check_steps(model: RobotModel, params: ModelParameters, dt: float, control_d
     The message names the setting, the largest value allowed and what sets it.
     """
     lim = step_limits(model, params, p_gain)
-    if dt > MARGIN * lim.dt:
+    if dt > lim.allowed_dt:
         raise InputError(f"dt = {dt:g} s is unstable for {lim.dt_reason}: the largest stable dt is "
-                         f"{MARGIN * lim.dt:.3g} s (use --dt {_round_down(MARGIN * lim.dt):g} or less)")
-    if control_dt > MARGIN * lim.control_dt:
+                         f"{lim.allowed_dt:.3g} s (use --dt {_round_down(lim.allowed_dt):g} or less)")
+    if control_dt > lim.allowed_control_dt:
         raise InputError(f"control_dt = {control_dt:g} s is unstable for {lim.control_dt_reason}: the largest "
-                         f"stable control_dt is {MARGIN * lim.control_dt:.3g} s "
-                         f"(use --control-dt {_round_down(MARGIN * lim.control_dt):g} or less)")
+                         f"stable control_dt is {lim.allowed_control_dt:.3g} s "
+                         f"(use --control-dt {_round_down(lim.allowed_control_dt):g} or less)")
 
 
 def _round_down(x: float) -> float:

@@ -30,7 +30,7 @@ import numpy as np
 from cobra_model.errors import InputError
 from cobra_model.gait import PAPER_FREQUENCIES_HZ, SidewindingGait
 from cobra_model.model import CobraModel
-from cobra_model.parameters import EFFECT_PARAMETERS, ModelParameters
+from cobra_model.parameters import ModelParameters, effect_parameter
 from cobra_model.runs import Run, interpolate_quaternions, interpolate_rows, read_run, write_run
 from cobra_model.servo import RAD_PER_PULSE
 from cobra_model.shipped import shipped_path
@@ -54,8 +54,7 @@ def ground_truth() -> ModelParameters:
         armature=0.045, joint_damping=0.25, motor_km=0.0095,
         k1=1.6e4, k2=45.0, mu_c=0.22, mu_s=0.34, mu_v=1.2, v_s=0.03,
     )
-    coulomb = next(e for e in EFFECT_PARAMETERS if e.name == "joint_coulomb")
-    return p.with_parameters([replace(coulomb, value=0.35)])
+    return p.with_parameters([replace(effect_parameter("joint_coulomb"), value=0.35)])
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,7 @@ from typing import Iterable, Iterator, Mapping
 
 from cobra_model.servo import SERVO_STALL_TORQUE_NM
 from cobra_model.errors import InputError
-from cobra_model.parameters import EFFECT_PARAMETERS, ModelParameters, Parameter
+from cobra_model.parameters import ModelParameters, Parameter, effect_parameter
 
 
 @dataclass(frozen=True)
@@ -99,30 +99,29 @@ class Effect:
             raise InputError(f"effect {self.name}: {exc}") from None
 
 
-_PARAMETER = {p.name: p for p in EFFECT_PARAMETERS}
 
 
 EFFECTS: tuple[Effect, ...] = (
     Effect("joint_coulomb_friction",
-           _PARAMETER["joint_coulomb"],
+           effect_parameter("joint_coulomb"),
            0.05, "a torque -tau_c tanh(qdot / 0.05 rad/s) at every joint",
            "joint residuals on all joints, correlated with sign(qdot), largest at velocity reversals",
            (("r_sign", 1.0), ("reversal_ratio", 1.0)),
            plausible=(0.0, 1.5), realistic=0.3),  # up to ~15 % of the XH540's 9.9 N m stall torque lost in its gearbox
     Effect("backlash",
-           _PARAMETER["backlash"],
+           effect_parameter("backlash"),
            0.005, "the servo loop does not act on the first +-b of its position error",
            "joint residuals correlated with sign(qdot), a lag of about b after each reversal",
            (("r_sign", 1.0), ("reversal_ratio", 1.0)),
            plausible=(0.0, 0.05), realistic=0.02),  # ~3 deg: gear play (~0.25 deg) plus printed horn/coupling play
     Effect("actuator_delay",
-           _PARAMETER["actuator_delay"],
+           effect_parameter("actuator_delay"),
            0.005, "every servo receives its command late by the delay",
            "joint residuals proportional to -qdot (a time shift): best lag > 0",
            (("r_vel", 1.0), ("lag_s", 1.0)),
            plausible=(0.0, 0.1), realistic=0.04),  # a few cycles of a >= 20 Hz command bus
     Effect("torque_saturation",
-           _PARAMETER["torque_limit"],
+           effect_parameter("torque_limit"),
            4.0, "the motor torque is clipped at the limit",
            "joint residuals grow with commanded effort; amplitudes fall short at the fast, loaded joints",
            (("r_effort", 1.0), ("amplitude_ratio", -1.0)),
@@ -130,7 +129,7 @@ EFFECTS: tuple[Effect, ...] = (
            # below ~1 N m a pitch joint could not lift the next module (0.55 kg at 0.13 m: 0.7 N m)
            plausible=(1.0, SERVO_STALL_TORQUE_NM), realistic=2.5),
     Effect("anisotropic_ground_friction",
-           _PARAMETER["lateral_friction_ratio"],
+           effect_parameter("lateral_friction_ratio"),
            1.2, "sideways friction of every contact scaled by the ratio (along-body unchanged)",
            "head-path residual with joints matched; slip residual sideways to the body",
            (("head_share", 1.0), ("sideways_share", 1.0)),
@@ -138,13 +137,13 @@ EFFECTS: tuple[Effect, ...] = (
            # modules' rolling sideways is already in the rigid-body dynamics, not in this ratio
            plausible=(0.5, 3.0), realistic=2.0),
     Effect("encoder_offset",
-           _PARAMETER["encoder_offset"],
+           effect_parameter("encoder_offset"),
            0.005, "the encoders read q + offset and the servo loop regulates the reading",
            "a constant offset of the joint residuals, independent of velocity",
            (("offset_score", 1.0),),
            plausible=(-0.1, 0.1), realistic=0.03),  # +-6 deg: a horn assembled a spline tooth off, a zero set by hand
     Effect("link_mass_error",
-           _PARAMETER["link_mass_error"],
+           effect_parameter("link_mass_error"),
            0.05, "the head module's mass (and inertia, scaled) changes by the parameter",
            "head-path residual growing over the run; joint residuals small",
            (("head_share", 1.0), ("sideways_share", -1.0)),

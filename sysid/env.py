@@ -14,11 +14,8 @@ from gymnasium import spaces
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
-from sysid.objective import ObjectiveTerms
+from sysid.objective import OBSERVED_TERMS, ObjectiveTerms
 
-#: Objective terms that enter the observation when ``observe_terms`` is set, in the order of
-#: :meth:`sysid.objective.ObjectiveTerms.observed`.
-OBSERVED_TERMS: tuple[str, ...] = ("head_final_m", "head_mean_m", "joint_rmse_rad", "cpg_sq")
 #: Observed terms are ``log10(term / reference term)`` clipped to +-this many decades, then
 #: divided by it (so each lies in [-1, 1]).
 TERM_DECADES = 3.0

@@ -67,9 +67,8 @@ def twin_counterpart(params: ModelParameters) -> ModelParameters:
     bound), capsule ends (``contact_rounding`` = the module radius) and the stiffest ground of
     the parameter table (``k1``, ``k2`` at their upper bounds: MuJoCo's contact carries a
     sustained load almost rigidly)."""
-    table = {p.name: p for p in params}
-    return params.with_values(mu_s=params.mu_c, mu_v=table["mu_v"].min, friction_cone=table["friction_cone"].max,
-                              contact_rounding=design.MODULE_RADIUS_M, k1=table["k1"].max, k2=table["k2"].max)
+    return params.with_values(mu_s=params.mu_c, mu_v=params["mu_v"].min, friction_cone=params["friction_cone"].max,
+                              contact_rounding=design.MODULE_RADIUS_M, k1=params["k1"].max, k2=params["k2"].max)
 
 
 #: MuJoCo's contact near its rigid limit: ``solref`` time constant [s] and the time step [s] that

@@ -272,6 +272,10 @@ def start_pose_sensitivity(spec: ObjectiveSpec, r: np.ndarray) -> tuple[np.ndarr
     return J, std
 
 
+#: The unweighted terms, in the order :meth:`ObjectiveTerms.observed` returns them.
+OBSERVED_TERMS: tuple[str, ...] = ("head_final_m", "head_mean_m", "joint_rmse_rad", "cpg_sq")
+
+
 @dataclass(frozen=True)
 class ObjectiveTerms:
     """The paper's reward terms for one parameter vector, means over the runs (Eqs. 7 and 8).
@@ -300,8 +304,8 @@ class ObjectiveTerms:
         return cls(head_final_m, head_mean_m, joint_rmse_rad, cpg_sq, external, internal, external + internal)
 
     def observed(self) -> np.ndarray:
-        """(4,) the unweighted terms, in the order of the fields (what a PPO state may carry)."""
-        return np.array([self.head_final_m, self.head_mean_m, self.joint_rmse_rad, self.cpg_sq])
+        """The unweighted terms in the order of :data:`OBSERVED_TERMS` (what a PPO state may carry)."""
+        return np.array([getattr(self, name) for name in OBSERVED_TERMS])
 
     def to_json(self) -> dict[str, float]:
         return dataclasses.asdict(self)

@@ -6,7 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from cobra_model.parameters import EFFECT_PARAMETERS, ModelParameters
+from cobra_model.errors import InputError
+from cobra_model.parameters import EFFECT_PARAMETERS, ModelParameters, effect_parameter
 from sysid.diagnose import NamedEffect, StructuralDifference
 from sysid.intervals import Whiteness
 from sysid.lsq import FitResult, FitStatus, IterationLog, ParameterReport
@@ -71,3 +72,6 @@ def test_an_effect_parameter_a_set_lacks_reads_as_inactive():
     assert nominal.get("joint_coulomb", 0.2) == 0.2            # an explicit default still wins
     with pytest.raises(Exception, match="unknown parameter 'no_such'"):
         nominal.get("no_such")
+    assert effect_parameter("backlash").value == 0.0
+    with pytest.raises(InputError, match="unknown effect parameter 'armature'; known: joint_coulomb"):
+        effect_parameter("armature")
