@@ -64,7 +64,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--duration", type=float, default=6.0, help="run length [s] (default 6)")
     parser.add_argument("--gaits", default="0.35,0.5,0.65", help="gait frequencies [Hz]")
     args = parser.parse_args(argv)
-    gaits = [float(f) for f in args.gaits.split(",")]
+    if not args.duration > 1.0:
+        parser.error(f"--duration must exceed the gait's 1 s smooth start, got {args.duration} s")
+    try:
+        gaits = [float(f) for f in args.gaits.split(",") if f.strip()]
+    except ValueError:
+        parser.error(f"--gaits: expected comma-separated frequencies [Hz], got {args.gaits!r}")
+    if not gaits or any(not f > 0 for f in gaits):
+        parser.error(f"--gaits: expected positive frequencies [Hz], got {args.gaits!r}")
     model = CobraModel.load()
     truth = ModelParameters.nominal().with_values(**TRUTH)
     ours = twin_counterpart(truth)

@@ -41,6 +41,9 @@ def main() -> None:
     parser.add_argument("--lsq-iterations", type=int, default=8, help="per horizon stage")
     parser.add_argument("--ppo-timesteps", type=int, default=1024)
     args = parser.parse_args()
+    for name in ("lsq_iterations", "ppo_timesteps"):
+        if getattr(args, name) < 1:
+            parser.error(f"--{name.replace('_', '-')} must be >= 1, got {getattr(args, name)}")
     train_paths, val_paths = load_manifest(DATA_DIR / "manifest.json")
     train, validation = read_runs(train_paths), read_runs(val_paths)
     nominal = ModelParameters.nominal()
