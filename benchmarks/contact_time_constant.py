@@ -2,7 +2,7 @@
 
 Issue 16's base fit is judged on MuJoCo-made runs. This benchmark separates what a fit can
 recover from what our model cannot express: the same gait, from the same rest pose, is run in
-MuJoCo's twin (:mod:`sysid.mujoco_recording`, no effect added) at contact time constants
+MuJoCo's twin (:mod:`sysid.generators.mujoco_recording`, no effect added) at contact time constants
 (``solref[0]``) from 1 ms to 40 ms, and in our simulator at MuJoCo's own values (sliding friction
 ``mu_c = mu_s``, the diamond of the pyramidal cone ``friction_cone`` at its bound, capsule ends
 ``contact_rounding`` = the module radius, no viscous ground term, the stiffest ground of the
@@ -31,7 +31,7 @@ from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
 from integrators import mujoco_twin
 from integrators.simulator import Simulator
-from sysid.mujoco_recording import rollout, twin_counterpart, twin_options
+from sysid.generators.mujoco_recording import rollout, twin_counterpart, twin_options
 
 #: The robot's parameter error (as in benchmarks/mujoco_fit.py).
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
@@ -41,7 +41,7 @@ MUJOCO_STEP_S = 0.00025
 HEADING_RAD = 0.3
 
 
-#: Changes of our ground parameters, one at a time, around :func:`sysid.mujoco_recording.twin_counterpart` (the
+#: Changes of our ground parameters, one at a time, around :func:`sysid.generators.mujoco_recording.twin_counterpart` (the
 #: sliding friction moves both coefficients, static friction stays at least the sliding one).
 SWEEP: tuple[dict[str, float], ...] = (
     {"k1": 2e3}, {"k1": 1e4}, {"k2": 10.0}, {"k2": 50.0}, {"mu_c": 0.18, "mu_s": 0.18}, {"mu_c": 0.3, "mu_s": 0.3},

@@ -22,10 +22,10 @@ import numpy as np
 
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
-from sysid.dataset import DATA_DIR, RunPlan, load_manifest, record
-from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
-from sysid.effects import EffectLibrary
-from sysid.splits import read_runs
+from sysid.generators.dataset import DATA_DIR, RunPlan, load_manifest, record
+from sysid.discrepancy.diagnose import DiagnoseConfig, Diagnosis, diagnose
+from sysid.discrepancy.effects import EffectLibrary
+from sysid.identification.splits import read_runs
 
 LIBRARY = EffectLibrary()
 #: Realistic magnitudes of each hidden effect (SI units of its main parameter, ``Effect.realistic``).

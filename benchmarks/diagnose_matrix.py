@@ -7,7 +7,7 @@ nominal values (``ERROR``, free in the fit) and which has one library effect at 
 or none (a null). Two engines make the data:
 
 - ``sim``: this project's simulator with the effect added (every library effect);
-- ``mujoco``: the MuJoCo twin (``sysid.mujoco_recording``) with the effect expressed on MuJoCo's
+- ``mujoco``: the MuJoCo twin (``sysid.generators.mujoco_recording``) with the effect expressed on MuJoCo's
   side (:data:`MUJOCO_OPTIONS`: joint ``frictionloss``, actuator ``forcerange``, commands
   delayed in a buffer, encoders offset, body-aligned anisotropic contact friction; the ground's
   parameters are then free too). Backlash and a payload mass are not expressed in the twin and
@@ -49,10 +49,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 from benchmarks._results import RESULTS_DIR, write_results  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from integrators.simulator import Simulator  # noqa: E402
-from sysid.dataset import RunPlan, record  # noqa: E402
-from sysid.diagnose import DiagnoseConfig, diagnose  # noqa: E402
-from sysid.effects import EffectLibrary  # noqa: E402
-from sysid.executor import make_executor  # noqa: E402
+from sysid.generators.dataset import RunPlan, record  # noqa: E402
+from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose  # noqa: E402
+from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
+from sysid.identification.executor import make_executor  # noqa: E402
 
 ERROR = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 FREE_SIM = ["mu_c", "joint_damping", "motor_km"]
@@ -94,7 +94,7 @@ def make_runs(job: Job, model: CobraModel) -> list:
         hidden = truth if job.effect is None else library.transform(truth, {job.effect: job.magnitude}, frozen=True)
         sim = Simulator(model, hidden)
         return [record(sim, p, rng, model) for p in plans]
-    from sysid.mujoco_recording import record_mujoco, twin_options
+    from sysid.generators.mujoco_recording import record_mujoco, twin_options
     options = twin_options(truth)
     if job.effect is not None:
         options = dataclasses.replace(options, **{MUJOCO_OPTIONS[job.effect]: job.magnitude})
@@ -185,7 +185,7 @@ def summary(rows: list[dict[str, Any]], engine: str) -> dict[str, Any]:
 
 def heatmap(rows: list[dict[str, Any]], engine: str, out: Path) -> Path:
     """The engine's confusion matrix as a PNG (rows: hidden, columns: named first)."""
-    from sysid.plots import plot_confusion
+    from sysid.gap.plots import plot_confusion
     mine = [r for r in rows if r["engine"] == engine]
     truth = sorted({r["effect"] or "none" for r in mine})
     named = sorted({r["named"] or "none" for r in mine} | set(truth))

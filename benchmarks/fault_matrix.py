@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import write_results  # noqa: E402
 from cobra_model.gait import SidewindingGait  # noqa: E402
-from cobra_model.runs import read_run  # noqa: E402
+from cobra_model.run import read_run  # noqa: E402
 from hardware import control_table as ct  # noqa: E402
 from hardware.config import BusConfig  # noqa: E402
 from hardware.emulator import EmulatorProcess  # noqa: E402
@@ -48,7 +48,7 @@ from hardware.faults import Fault, full_disk_after, parse_fault  # noqa: E402
 from hardware.plant import KinematicPlant  # noqa: E402
 from hardware.recorder import record_gait  # noqa: E402
 from integrators.simulate import simulate_like  # noqa: E402
-from sysid.metrics import compare_runs  # noqa: E402
+from sysid.gap.metrics import compare_runs  # noqa: E402
 
 GAIT = SidewindingGait(freq_hz=0.5, ramp_s=0.5)
 

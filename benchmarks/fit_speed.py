@@ -4,7 +4,7 @@ Measures, in one run: objective evaluations per second one at a time vs batched;
 the wall time, the objective evaluations it used and the held-out final head error per gait
 before (nominal) and after; and when PPO's best parameters first reached the least-squares
 held-out error (summed over the held-out runs), if they did. PPO runs with seed 0 (the seed its
-settings were chosen on: ``sysid.ppo.PPOSettings``). Writes the tables to
+settings were chosen on: ``sysid.identification.ppo.PPOSettings``). Writes the tables to
 ``benchmarks/results/fit_speed.{json,md}`` and prints them; PPO's progress goes to stderr. Run
 alone on the machine (it times itself):
 ``.venv/bin/python benchmarks/fit_speed.py [--lsq-iterations N] [--ppo-timesteps N]``.
@@ -19,11 +19,11 @@ import numpy as np
 from _results import write_results
 from cobra_model import ModelParameters
 from held_out import final_head_errors, ppo_progress, time_to_reach
-from sysid.dataset import DATA_DIR, load_manifest
-from sysid.lsq import fit_lsq
-from sysid.objective import Objective
-from sysid.report import evaluate_held_out
-from sysid.splits import read_runs
+from sysid.generators.dataset import DATA_DIR, load_manifest
+from sysid.identification.lsq import fit_lsq
+from sysid.identification.objective import Objective
+from sysid.gap.report import evaluate_held_out
+from sysid.identification.splits import read_runs
 
 
 def evals_per_second(objective: Objective, k: int) -> float:
@@ -49,7 +49,7 @@ def main() -> None:
     nominal = ModelParameters.nominal()
     objective = Objective(train, nominal)
     one, batched = evals_per_second(objective, 1), evals_per_second(objective, 10)
-    lines = [f"# Identification speed on the reference dataset", "",
+    lines = ["# Identification speed on the reference dataset", "",
              f"{len(train)} training runs, {len(validation)} held out; {len(nominal.free_names)} free parameters; "
              f"least squares with {args.lsq_iterations} Jacobians per horizon stage at most, PPO "
              f"{args.ppo_timesteps} timesteps (seed 0).", "",
@@ -60,7 +60,7 @@ def main() -> None:
     t0 = time.perf_counter()
     lsq = fit_lsq(Objective(train, nominal), max_iterations=args.lsq_iterations)
     rows.append(("least squares (CasADi)", time.perf_counter() - t0, lsq))
-    from sysid.ppo import fit_ppo
+    from sysid.identification.ppo import fit_ppo
     t0 = time.perf_counter()
     ppo = fit_ppo(Objective(train, nominal), total_timesteps=args.ppo_timesteps, seed=0,
                   progress=ppo_progress("PPO", args.ppo_timesteps))

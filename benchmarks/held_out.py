@@ -7,9 +7,9 @@ from typing import Callable, Sequence
 import numpy as np
 
 from cobra_model import ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators.simulate import simulate_like
-from sysid.metrics import compare_runs
+from sysid.gap.metrics import compare_runs
 
 
 def final_head_errors(runs: Sequence[Run], params: ModelParameters) -> np.ndarray:
@@ -22,7 +22,7 @@ def time_to_reach(runs: Sequence[Run], history: Sequence[tuple[float, int, Model
                   target_m: float) -> tuple[float, int] | None:
     """(seconds, timesteps) at which a PPO best-so-far first had a summed held-out final head
     error at or below ``target_m`` [m]; None if it never did (``history``: the
-    ``best_history`` of :func:`sysid.ppo.fit_ppo`)."""
+    ``best_history`` of :func:`sysid.identification.ppo.fit_ppo`)."""
     for seconds, steps, params in history:
         if final_head_errors(runs, params).sum() <= target_m:
             return seconds, steps

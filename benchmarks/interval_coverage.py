@@ -4,14 +4,14 @@ Each recovery makes synthetic runs with known parameters on this project's simul
 them, and checks, per free parameter, whether the 95 % interval holds the truth, for the
 interval with white residuals assumed (Gauss-Newton ``sigma^2 (J^T J)^-1`` plus the start pose:
 ``ci_low_iid``/``ci_high_iid``, the estimator before issue 16) and for the HAC sandwich
-(``ci_low``/``ci_high``, :mod:`sysid.intervals`) of the same fit.
+(``ci_low``/``ci_high``, :mod:`sysid.identification.intervals`) of the same fit.
 
 One recovery (seed ``s``, everything drawn from ``numpy.random.default_rng(s)``):
 
 - truth: :data:`BASE_TRUTH` (``benchmarks/recovery.py``'s robot) with each free parameter
   scaled by ``1 + U(-5 %, 5 %)``, so that coverage is not a property of one parameter vector;
 - data: three runs of 3 s (one per gait, 0.35 / 0.5 / 0.65 Hz), random start position and
-  heading, measured like the reference dataset (:func:`sysid.dataset.record`: quantised 50 Hz
+  heading, measured like the reference dataset (:func:`sysid.generators.dataset.record`: quantised 50 Hz
   encoders, 0.5 mm motion-capture noise, dropouts);
 - fit: :data:`FREE` (``mu_c``, ``joint_damping``, ``motor_km``: the parameters
   ``tests/test_lsq.py`` recovers, identified by head path and joints alike) from a guess
@@ -47,11 +47,11 @@ import numpy as np
 
 from _results import write_results
 from cobra_model import CobraModel, ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators.simulator import Simulator
-from sysid.dataset import RunPlan, record
-from sysid.lsq import FitResult, fit_lsq
-from sysid.objective import Objective
+from sysid.generators.dataset import RunPlan, record
+from sysid.identification.lsq import FitResult, fit_lsq
+from sysid.identification.objective import Objective
 
 BASE_TRUTH = ModelParameters.nominal().with_values(armature=0.04, joint_damping=0.2, motor_km=0.0095, k1=1.5e4,
                                                    k2=40.0, mu_c=0.25, mu_s=0.38, mu_v=1.0, v_s=0.03)
@@ -151,7 +151,7 @@ def markdown(table: list[dict], seeds: list[int], dev: bool, wall_s: float) -> s
              f"{seeds[0]}-{seeds[-1]}, {len(seeds)} recoveries per scenario)", "",
              f"Free parameters {', '.join(FREE)}; three runs of {RUN_S:g} s per recovery; "
              f"benchmark wall time {wall_s:.0f} s. `iid`: Gauss-Newton interval, white residuals assumed "
-             "(the estimator before issue 16); `HAC`: Newey-West sandwich (`sysid/intervals.py`), now reported. "
+             "(the estimator before issue 16); `HAC`: Newey-West sandwich (`sysid/identification/intervals.py`), now reported. "
              "Coverage with its Wilson 95 % interval (intervals of one recovery are not independent, so "
              "the overall Wilson interval is optimistic).", "",
              "| scenario | parameter | intervals | coverage iid | coverage HAC | median width HAC / iid | "

@@ -5,7 +5,7 @@ contact configurations, over 3 noise seeds and 2 starting headings, the fitted m
 final head error is at most 5 cm on every gait and its joint RMSE at most 1.5 times the
 quantisation-and-noise floor. This benchmark measures exactly that, and reports where it fails.
 
-Configurations (the robot's parameter error ``TRUTH`` in all; :mod:`sysid.mujoco_recording`):
+Configurations (the robot's parameter error ``TRUTH`` in all; :mod:`sysid.generators.mujoco_recording`):
 
 | name | contact | friction cone | solref |
 |---|---|---|---|
@@ -24,7 +24,7 @@ Per configuration x seed x heading ``h``: three training runs (0.35/0.5/0.65 Hz,
 ``--train-duration`` s, heading ``h``) and three held-out runs (same gaits,
 ``--holdout-duration`` s, heading ``h + 1 rad``), measured like the reference dataset (50 Hz
 quantised encoders, mocap noise and dropouts; noise drawn from the seed). The fit is
-``cobra fit --method lsq``'s (:func:`sysid.lsq.fit_lsq`) from the nominal model with
+``cobra fit --method lsq``'s (:func:`sysid.identification.lsq.fit_lsq`) from the nominal model with
 ``FREE`` free (or ``--free``). Per held-out gait the table gives the final head error of the
 nominal and the fitted model and the fitted model's joint RMSE against the floor
 (``2 pi / 4096 / sqrt 12`` [rad]: the encoders' quantisation, the only noise on the joint log;
@@ -50,15 +50,15 @@ import numpy as np
 
 from _results import write_results
 from cobra_model import CobraModel, ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulate import simulate_like
 from cobra_model.servo import PULSES_PER_REV
-from sysid.dataset import RunPlan
-from sysid.lsq import fit_lsq
-from sysid.metrics import compare_runs
-from sysid.mujoco_recording import describe, record_mujoco, stiff_contact, twin_options
-from sysid.objective import Objective, Weights
+from sysid.generators.dataset import RunPlan
+from sysid.identification.lsq import fit_lsq
+from sysid.gap.metrics import compare_runs
+from sysid.generators.mujoco_recording import describe, record_mujoco, stiff_contact, twin_options
+from sysid.identification.objective import Objective, Weights
 
 #: The robot's parameter error (as in benchmarks/mujoco_robustness.py).
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}

@@ -1,7 +1,7 @@
 """Discrepancy workflow on runs MuJoCo generated: MuJoCo effect vs named effect, gap before/after, wall time.
 
 Mirrors ``benchmarks/diagnose_accuracy.py``, but the "measured" runs come from MuJoCo's twin of
-the same URDF (:mod:`sysid.mujoco_recording`: another contact model, integrator and servo model),
+the same URDF (:mod:`sysid.generators.mujoco_recording`: another contact model, integrator and servo model),
 with the same parameter error (``TRUTH``) and one physical effect added in MuJoCo per case:
 
 | case | MuJoCo effect | closest effect of our library |
@@ -18,7 +18,7 @@ the first 6 for training and the last 3 held out; ``diagnose`` starts from the n
 parameter, the ground's shape (``friction_cone``, ``contact_rounding``) included, because
 MuJoCo's contact (soft constraints, a friction cone, capsule ends) is another model than ours
 and only the fitted ground can stand in for it. Per case the table gives the effect(s) named,
-the structural differences reported instead of a proxy (``sysid.diagnose.choose``), the best
+the structural differences reported instead of a proxy (``sysid.discrepancy.diagnose.choose``), the best
 candidate of round 1, the held-out gap, and for a named effect with a MuJoCo counterpart
 (frictionloss -> joint_coulomb, forcerange -> torque_limit) whether its 95 % interval holds
 MuJoCo's value. Written to ``benchmarks/results/mujoco_robustness.{json,md}``; progress to
@@ -31,7 +31,7 @@ our simulator differs from MuJoCo with no effect, both at the true parameters (m
 difference is hard to tell from it.
 
 ``--contact stiff`` runs the same cases on MuJoCo's contact near its rigid limit (2 ms time
-constant instead of 20 ms, :func:`sysid.mujoco_recording.stiff_contact`), the configuration on which
+constant instead of 20 ms, :func:`sysid.generators.mujoco_recording.stiff_contact`), the configuration on which
 our ground can follow MuJoCo's (``benchmarks/contact_time_constant.py``); results then go to
 ``mujoco_robustness_stiff.{json,md}``.
 
@@ -51,15 +51,15 @@ import numpy as np
 from _results import write_results
 
 from cobra_model import CobraModel, ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulate import simulate_like
-from sysid.diagnose import Diagnosis
-from sysid.dataset import RunPlan
-from sysid.diagnose import DiagnoseConfig, diagnose
-from sysid.effects import EffectLibrary
-from sysid.metrics import compare_runs
-from sysid.mujoco_recording import record_mujoco, stiff_contact, twin_options
+from sysid.discrepancy.diagnose import Diagnosis
+from sysid.generators.dataset import RunPlan
+from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
+from sysid.discrepancy.effects import EffectLibrary
+from sysid.gap.metrics import compare_runs
+from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_options
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
@@ -133,7 +133,7 @@ def main(argv: list[str] | None = None) -> int:
                              "while developing)")
     parser.add_argument("--contact", choices=CONTACTS, default="default",
                         help="MuJoCo's contact: its default soft one (solref 20 ms; results mujoco_robustness.*) "
-                             "or near rigid (2 ms, sysid.mujoco_recording.stiff_contact; mujoco_robustness_stiff.*)")
+                             "or near rigid (2 ms, sysid.generators.mujoco_recording.stiff_contact; mujoco_robustness_stiff.*)")
     parser.add_argument("--effect-sizes", action="store_true",
                         help="print each effect's size beside our simulator's difference from MuJoCo; no diagnosis")
     args = parser.parse_args(argv)

@@ -21,12 +21,12 @@ import time
 import numpy as np
 
 from cobra_model import CobraModel, ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from held_out import final_head_errors, ppo_progress, time_to_reach
 from integrators.simulator import Simulator
-from sysid.dataset import RunPlan, record
-from sysid.lsq import FitResult, fit_lsq
-from sysid.objective import Objective
+from sysid.generators.dataset import RunPlan, record
+from sysid.identification.lsq import FitResult, fit_lsq
+from sysid.identification.objective import Objective
 
 TRUTH = ModelParameters.nominal().with_values(armature=0.04, joint_damping=0.2, motor_km=0.0095, k1=1.5e4,
                                               k2=40.0, mu_c=0.25, mu_s=0.38, mu_v=1.0, v_s=0.03)
@@ -94,7 +94,7 @@ def main() -> None:
         print(f"| {r.name} | {truth:.4g} | {r.initial:.4g} | {r.value:.4g} | {100 * worst:+.2f} % | "
               f"[{r.ci_low:.4g}, {r.ci_high:.4g}] | {'yes' if r.ci_low <= truth <= r.ci_high else 'no'} | "
               f"{r.reason} |")
-    from sysid.ppo import fit_ppo
+    from sysid.identification.ppo import fit_ppo
     start, (lsq, lsq_wall) = guesses[0], fits[0]
     before = final_head_errors(held, start)
     after_lsq = final_head_errors(held, lsq.params)

@@ -13,11 +13,11 @@ from typing import Sequence, TextIO
 from cobra_cli.common import load_params, parse_names
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
-from cobra_model.runs import Run
-from sysid.datacheck import DataCheck, apply, check_runs
-from sysid.splits import expand, read_runs
+from cobra_model.run import Run
+from sysid.identification.datacheck import DataCheck, apply, check_runs
+from sysid.identification.splits import expand, read_runs
 
-#: Horizon [s] of the identifiability Jacobian (see :func:`sysid.datacheck.check_runs`).
+#: Horizon [s] of the identifiability Jacobian (see :func:`sysid.identification.datacheck.check_runs`).
 DEFAULT_HORIZON_S = 3.0
 
 

@@ -16,9 +16,10 @@ import numpy as np
 from cobra_cli.common import load_params
 from cobra_cli.progress import progress_bar
 from cobra_model.errors import InputError
-from cobra_model.runs import Run, read_run
+from cobra_model.run import Run
+from cobra_model.run_files import read_run
 from integrators.simulate import simulate_like
-from sysid.metrics import DEFAULT_WINDOW_S, GapReport, compare_runs
+from sysid.gap.metrics import DEFAULT_WINDOW_S, GapReport, compare_runs
 
 #: Files written by ``--plots DIR``: figure key -> file name (PNGs and the 3-D replay).
 PLOT_FILES: dict[str, str] = {
@@ -76,7 +77,7 @@ def write_plots(measured: Run, simulated: Run, report: GapReport,
                 paths: dict[str, Path]) -> list[Path]:
     """Draw the comparison figures into ``paths`` (keys of :data:`PLOT_FILES`); returns the files."""
     # Imported here so that matplotlib does not slow down every other `cobra` command.
-    from sysid import plots
+    from sysid.gap import plots
 
     from viz.replay import write_replay_html
 

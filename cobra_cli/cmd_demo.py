@@ -13,12 +13,13 @@ from pathlib import Path
 from cobra_cli.common import check_writable
 from cobra_cli.progress import progress_bar
 from cobra_model.model import CobraModel
-from cobra_model.runs import Run, read_run
+from cobra_model.run import Run
+from cobra_model.run_files import read_run
 from integrators.simulate import simulate_like
-from sysid.dataset import DATA_DIR, load_manifest
-from sysid.metrics import compare_runs
+from sysid.generators.dataset import DATA_DIR, load_manifest
+from sysid.gap.metrics import compare_runs
 from viz.replay import write_replay_html
-from sysid.plots import plot_error_bars, plot_head_paths, plot_joint_responses, plot_window_correlation
+from sysid.gap.plots import plot_error_bars, plot_head_paths, plot_joint_responses, plot_window_correlation
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -35,7 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     manifest = args.data / "manifest.json"
     if not manifest.is_file():
-        raise FileNotFoundError(f"{manifest} does not exist (regenerate with `python -m sysid.dataset`)")
+        raise FileNotFoundError(f"{manifest} does not exist (regenerate with `python -m sysid.generators.dataset`)")
     train, validation = load_manifest(manifest)
     figures = {name: args.out / name for name in ("head_paths.png", "head_error_per_gait.png", "joints_5_6.png",
                                                   "window_correlation.png", "replay.html")}

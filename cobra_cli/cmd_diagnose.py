@@ -10,9 +10,10 @@ from typing import Sequence
 from cobra_cli.cmd_check import check_before_fit
 from cobra_cli.common import check_writable, load_params, parse_names
 from cobra_model.errors import InputError
-from sysid.diagnose import DiagnoseConfig, Diagnosis, diagnose
-from sysid.report import head_text
-from sysid.splits import expand, read_runs
+from sysid.discrepancy.effects import EffectLibrary
+from sysid.discrepancy.diagnose import DiagnoseConfig, Diagnosis, diagnose
+from sysid.gap.report import head_text
+from sysid.identification.splits import expand, read_runs
 
 OUTPUTS = ("report.html", "diagnosis.json", "augmented_params.json")
 
@@ -21,8 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "diagnose", help="find the physical effect the model lacks, add it, refit, show the gap",
         description="Fit the model, localise the residuals, try the library of candidate effects "
-                    "(joint_coulomb_friction, backlash, actuator_delay, torque_saturation, "
-                    "anisotropic_ground_friction, encoder_offset, link_mass_error), name the one the "
+                    f"({', '.join(EffectLibrary().names)}), name the one the "
                     "held-out runs support, add it and refit. A manifest.json among RUNS gives its split.")
     p.add_argument("runs", nargs="+", metavar="RUNS", help="training run CSVs or a dataset manifest.json")
     p.add_argument("--holdout", nargs="*", default=[], metavar="RUN", help="held-out runs (added to a manifest's)")
@@ -112,8 +112,8 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
 
 
 def _write_report(result: Diagnosis, out: Path) -> None:
-    from sysid import plots
-    from sysid.report import HtmlReport, held_out_figures
+    from sysid.gap import plots
+    from sysid.gap.report import HtmlReport, held_out_figures
 
     page = HtmlReport("cobra diagnose")
     page.heading("Verdict")

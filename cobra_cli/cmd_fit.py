@@ -9,10 +9,10 @@ from cobra_cli.cmd_check import check_before_fit
 from cobra_cli.common import check_writable, load_params, parse_names
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
-from sysid.executor import make_executor
-from sysid.lsq import FitResult
-from sysid.objective import Objective, Weights
-from sysid.splits import expand, read_runs
+from sysid.identification.executor import make_executor
+from sysid.identification.lsq import FitResult
+from sysid.identification.objective import Objective, Weights
+from sysid.identification.splits import expand, read_runs
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -98,11 +98,11 @@ def run(args: argparse.Namespace) -> int:
         bar.set_postfix(cost=f"{cost:.4g}", s=f"{seconds:.0f}")
 
     if args.method == "lsq":
-        from sysid.lsq import fit_lsq
+        from sysid.identification.lsq import fit_lsq
         result = fit_lsq(objective, max_iterations=args.max_iterations, budget_seconds=args.budget_seconds,
                          progress=progress)
     else:
-        from sysid.ppo import fit_ppo
+        from sysid.identification.ppo import fit_ppo
         curve = report_dir / "reward_curve.png" if report_dir else None
         if curve is not None:
             report_dir.mkdir(parents=True, exist_ok=True)
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
         print(line)
     print(f"wrote {out}")
     if validation:
-        from sysid.report import HtmlReport, evaluate_held_out, head_text, held_out_figures
+        from sysid.gap.report import HtmlReport, evaluate_held_out, head_text, held_out_figures
         held = evaluate_held_out(validation, start, fitted)
         print("held-out runs, before -> after: final head error, joint RMSE")
         for h in held:

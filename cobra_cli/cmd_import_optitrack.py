@@ -9,9 +9,9 @@ import numpy as np
 
 from cobra_cli.common import check_writable
 from cobra_model.errors import InputError
-from cobra_model.runs import write_run
-from sysid.clock_alignment import estimate_clock_offset
-from sysid.optitrack import (
+from cobra_model.run_files import write_run
+from cobra_model.clock_alignment import estimate_clock_offset
+from cobra_model.motive import (
     TARGET_NAMES,
     merge_take_and_joints,
     read_joint_log,

@@ -15,7 +15,8 @@ from cobra_cli.common import check_writable, load_params
 from cobra_cli.progress import progress_bar
 from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
-from cobra_model.runs import Run, read_run
+from cobra_model.run import Run
+from cobra_model.run_files import read_run
 from integrators.simulate import simulate_like
 from viz.replay import DEFAULT_FPS, serve_replay, write_replay_html
 

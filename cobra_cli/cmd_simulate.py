@@ -10,11 +10,10 @@ from cobra_cli.progress import progress_bar
 from cobra_model.errors import InputError
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
-from cobra_model.runs import read_run, write_run
+from cobra_model.run_files import read_run, write_run
 from integrators.simulate import simulate_gait, simulate_like
 from integrators.simulator import SimSettings, Simulator
-from integrators.stability import check_steps
-from sysid.effects import EffectLibrary, parse_effects
+from sysid.discrepancy.effects import EffectLibrary, parse_effects
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -34,9 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rate", type=float, default=100.0, help="output sample rate [Hz] (default 100)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE[,NAME=VALUE]",
                    help="add a physical effect the nominal model lacks, VALUE its main parameter in SI "
-                        "units: joint_coulomb_friction [N m], backlash [rad half-width], actuator_delay [s], "
-                        "torque_saturation [N m], anisotropic_ground_friction [sideways/forward ratio], "
-                        "encoder_offset [rad], link_mass_error [kg]")
+                        f"units: {EffectLibrary().help_text()}")
     p.add_argument("--force", action="store_true", help="overwrite an existing output")
     p.set_defaults(func=run)
 
@@ -52,16 +49,15 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--dt/--control-dt: {exc}") from None
     if args.duration <= 0:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
-    model = CobraModel.load()
-    check_steps(Simulator(model, params, settings).model, params, settings.dt, settings.control_dt, settings.gains.p)
+    sim = Simulator(CobraModel.load(), params, settings)
+    sim.check_steps()
     with progress_bar("simulating") as bar:
         if args.from_run:
-            result = simulate_like(read_run(args.from_run), params=params, settings=settings, model=model,
-                                   progress=bar)
+            result = simulate_like(read_run(args.from_run), simulator=sim, progress=bar)
         else:
-            result = simulate_gait(SidewindingGait(args.freq), args.duration, params=params, settings=settings,
-                                   model=model, heading_rad=float(np.deg2rad(args.heading)),
-                                   sample_rate_hz=args.rate, progress=bar)
+            result = simulate_gait(SidewindingGait(args.freq), args.duration, simulator=sim,
+                                   heading_rad=float(np.deg2rad(args.heading)), sample_rate_hz=args.rate,
+                                   progress=bar)
     write_run(result, out, force=args.force)
     h0, h1 = result.head_pos[0], result.head_pos[-1]
     print(f"wrote {out} ({len(result.t)} samples, {result.t[-1] - result.t[0]:.2f} s); head moved from "

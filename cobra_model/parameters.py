@@ -125,7 +125,7 @@ NOMINAL: tuple[Parameter, ...] = (
                   "cylinder rim, the module radius a hemispherical (capsule) end"),
 )
 
-#: Parameters of the physical effects the nominal model lacks (``sysid.effects``), each at the
+#: Parameters of the physical effects the nominal model lacks (``sysid.discrepancy.effects``), each at the
 #: value where it is inactive: the one place those values live. The simulator reads an effect's
 #: parameter from a set that has it and this inactive value otherwise (:meth:`ModelParameters.get`).
 EFFECT_PARAMETERS: tuple[Parameter, ...] = (

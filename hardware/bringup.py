@@ -16,8 +16,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-from dynamixel_sdk import COMM_SUCCESS
-
 from hardware import control_table as ct
 from hardware.config import BusConfig
 from hardware.control_table import OperatingMode, describe_hardware_error

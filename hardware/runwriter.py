@@ -1,6 +1,6 @@
 """Crash-safe, row-by-row writer of a run in the ``cobra-run/1`` format.
 
-:func:`cobra_model.runs.write_run` writes a finished run in one go; a recording must instead
+:func:`cobra_model.run_files.write_run` writes a finished run in one go; a recording must instead
 survive a crash, a Ctrl-C or a pulled cable with every sample received so far on disk. This
 writer therefore:
 
@@ -13,7 +13,7 @@ writer therefore:
   complete line and raises :class:`RunWriteError`; a sidecar that cannot be replaced at close
   is left as it was (it still says the recording did not finish).
 
-The column layout is exactly that of :func:`cobra_model.runs.write_run` for a run with joint
+The column layout is exactly that of :func:`cobra_model.run_files.write_run` for a run with joint
 velocities and currents and no other tracked bodies: ``t, q_ref_1..11, q_1..11, dq_1..11,
 current_1..11, head_x, head_y, head_z, head_qw, head_qx, head_qy, head_qz``. Motion capture is
 merged later, so the ``head_*`` cells are left empty (missing samples).
@@ -30,7 +30,8 @@ from typing import Any, BinaryIO, Mapping, Sequence
 import numpy as np
 
 from cobra_model.errors import InputError
-from cobra_model.runs import FORMAT, NUM_JOINTS, body_columns, joint_columns, json_default
+from cobra_model.run import FORMAT, NUM_JOINTS, body_columns, joint_columns
+from cobra_model.run_files import json_default
 
 #: Head orientation columns (w, x, y, z), as in ``DATA_FORMAT.md``.
 HEAD_QUAT_COLUMNS = ("head_qw", "head_qx", "head_qy", "head_qz")

@@ -79,10 +79,10 @@ class TwinOptions:
         solimp: MuJoCo's contact impedance ``(d0, dwidth, width [m], midpoint, power)``.
         timestep: [s].
         command_delay: the servos receive each command this long after it was sent [s] (a
-            buffer on the bus: :func:`sysid.mujoco_recording.record_mujoco` delays the goals; the
+            buffer on the bus: :func:`sysid.generators.mujoco_recording.record_mujoco` delays the goals; the
             run logs them when sent).
         encoder_offset: every encoder reads the joint angle plus this [rad], and the servo loop
-            holds its goal in readings (:func:`sysid.mujoco_recording.record_mujoco`).
+            holds its goal in readings (:func:`sysid.generators.mujoco_recording.record_mujoco`).
         self_collision: with ``contact="cylinder"``, whether the robot's cylinders also collide
             with each other (MuJoCo's default); False leaves ground contacts only, as in our
             simulator (for a like-for-like speed comparison).

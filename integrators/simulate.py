@@ -13,11 +13,10 @@ from typing import Callable
 import numpy as np
 from scipy.interpolate import Akima1DInterpolator
 
-from cobra_model.errors import InputError
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators.simulator import SimSettings, SimState, Simulator, Trajectory
 
 #: Bodies a simulated run reports besides the head (the paper tracked the head, link 6 and the tail).
@@ -156,17 +155,17 @@ def _meta(params: ModelParameters, settings: SimSettings, gait: dict | None, not
 
 def simulate_gait(gait: SidewindingGait, duration: float, *, params: ModelParameters | None = None,
                   settings: SimSettings | None = None, model: CobraModel | None = None,
-                  head_xy: tuple[float, float] = (0.0, 0.0), heading_rad: float = 0.0,
+                  simulator: Simulator | None = None, head_xy: tuple[float, float] = (0.0, 0.0), heading_rad: float = 0.0,
                   sample_rate_hz: float = DEFAULT_SAMPLE_RATE_HZ,
                   progress: Callable[[float], None] | None = None) -> Run:
-    """Simulate the gait from the straight pose at rest; the run is sampled at ``sample_rate_hz``."""
-    model = model or CobraModel.load()
-    params = params or ModelParameters.nominal()
-    sim = Simulator(model, params, settings)
+    """Simulate the gait from the straight pose at rest; the run is sampled at ``sample_rate_hz``.
+
+    ``simulator`` (if given) replaces ``params``, ``settings`` and ``model``."""
+    sim = simulator or Simulator(model or CobraModel.load(), params or ModelParameters.nominal(), settings)
     every = max(1, int(round(1.0 / (sample_rate_hz * sim.settings.dt))))
     state = sim.rest_state(gait.q_ref(0.0), head_xy=head_xy, heading_rad=heading_rad)
     traj = sim.rollout(state, gait.q_ref, duration, record_every=every, progress=progress)
-    return trajectory_to_run(model, traj, meta=_meta(params, sim.settings, gait.to_json(),
+    return trajectory_to_run(sim.model, traj, meta=_meta(sim.params, sim.settings, gait.to_json(),
                                                     f"simulated {duration} s of sidewinding at {gait.freq_hz} Hz"))
 
 

@@ -28,7 +28,7 @@ Model effects beyond the nominal parameter table enter through parameters of the
 ``encoder_offset`` [rad] (the encoder reads ``q + offset``), ``actuator_delay`` [s] (commands
 reach the servo late) and ``link_mass_error`` [kg] (added to the root module). A set without
 one of them simulates it at its inactive value, which lives only in
-``cobra_model.parameters.EFFECT_PARAMETERS`` (see ``sysid.effects``).
+``cobra_model.parameters.EFFECT_PARAMETERS`` (see ``sysid.discrepancy.effects``).
 """
 from __future__ import annotations
 
@@ -262,6 +262,12 @@ class Simulator:
         nb = self.model.n_base
         root = ("root vx", "root vy", "root vz", "root wx", "root wy", "root wz")
         return ", ".join(root[i] if i < nb else self.model.joint_names[i - nb] for i in indices)
+
+    def check_steps(self) -> None:
+        """Raise :class:`InputError` before a run if ``dt`` or ``control_dt`` would not settle for
+        this model and these parameters (:func:`integrators.stability.check_steps`)."""
+        stability.check_steps(self.model, self.params, self.settings.dt, self.settings.control_dt,
+                              self.settings.gains.p)
 
     def _stable_steps(self) -> str:
         """The largest stable steps for this model and parameters (:mod:`integrators.stability`)."""

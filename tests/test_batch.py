@@ -7,7 +7,7 @@ import pytest
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from integrators.batch import BatchSimulator
-from sysid.effects import EffectLibrary
+from sysid.discrepancy.effects import EffectLibrary
 
 
 def test_batch_matches_single_rollouts(cobra):

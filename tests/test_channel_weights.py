@@ -1,4 +1,4 @@
-"""How the discrepancy workflow weights the head path against the joints (sysid.diagnose.balanced_weights).
+"""How the discrepancy workflow weights the head path against the joints (sysid.discrepancy.diagnose.balanced_weights).
 
 Two 2 s runs made by this simulator at the parameters the objective is evaluated at: what is left
 is the sensors' noise (quantised encoders, mocap noise), far below the default scales, so the
@@ -16,9 +16,9 @@ import pytest
 
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
-from sysid.dataset import RunPlan, record
-from sysid.diagnose import balanced_weights
-from sysid.objective import Objective, Weights
+from sysid.generators.dataset import RunPlan, record
+from sysid.discrepancy.diagnose import balanced_weights
+from sysid.identification.objective import Objective, Weights
 
 PARAMS = ModelParameters.nominal().with_frozen(free=["mu_c"])
 

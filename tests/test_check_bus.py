@@ -4,7 +4,6 @@ from __future__ import annotations
 import json
 import time
 
-import pytest
 
 from cobra_cli.main import main
 from hardware import control_table as ct

@@ -1,4 +1,4 @@
-"""Tests of ``cobra compare`` (in-process through ``cobra_cli.main.main``) and of ``sysid.plots``."""
+"""Tests of ``cobra compare`` (in-process through ``cobra_cli.main.main``) and of ``sysid.gap.plots``."""
 from __future__ import annotations
 
 import json
@@ -10,10 +10,11 @@ import pytest
 from cobra_cli.cmd_compare import PLOT_FILES
 from cobra_cli.main import main
 from cobra_model.gait import SidewindingGait
-from cobra_model.runs import NUM_JOINTS, Run, write_run
+from cobra_model.run import NUM_JOINTS, Run
+from cobra_model.run_files import write_run
 from integrators.simulate import simulate_gait
-from sysid.metrics import compare_runs
-from sysid.plots import (
+from sysid.gap.metrics import compare_runs
+from sysid.gap.plots import (
     plot_error_bars,
     plot_head_errors,
     plot_head_paths,

@@ -8,13 +8,14 @@ import numpy as np
 import pytest
 
 from cobra_cli.main import main
-from sysid.diagnose import NamedEffect
+from sysid.discrepancy.diagnose import NamedEffect
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
-from cobra_model.runs import Run, write_run
+from cobra_model.run import Run
+from cobra_model.run_files import write_run
 from integrators.simulate import simulate_gait
-from sysid.effects import EffectLibrary
-from sysid.splits import expand
+from sysid.discrepancy.effects import EffectLibrary
+from sysid.identification.splits import expand
 
 TRUTH = ModelParameters.nominal().with_values(mu_c=0.22)
 

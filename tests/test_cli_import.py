@@ -9,7 +9,7 @@ import pytest
 from cobra_cli.cmd_import_optitrack import parse_map
 from cobra_cli.main import main
 from cobra_model.errors import InputError
-from cobra_model.runs import read_run
+from cobra_model.run_files import read_run
 
 DATA = Path(__file__).parent / "data"
 TAKE = DATA / "motive_take_small.csv"

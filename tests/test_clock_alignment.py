@@ -8,11 +8,11 @@ import pytest
 
 from cobra_model import SidewindingGait
 from cobra_model.errors import InputError
-from cobra_model.runs import interpolate_rows
+from cobra_model.resample import interpolate_rows
 from integrators.simulate import simulate_gait
-from sysid.clock_alignment import estimate_clock_offset
+from cobra_model.clock_alignment import estimate_clock_offset
 from cobra_model.servo import PULSES_PER_REV
-from sysid.optitrack import MotiveTake, RigidBodyTrack
+from cobra_model.motive import MotiveTake, RigidBodyTrack
 
 OFFSET_S = 0.137
 FRAME_HZ = 120.0
@@ -79,7 +79,7 @@ def _cells(values: np.ndarray) -> str:
 def test_import_optitrack_estimates_and_uses_the_offset(recording, tmp_path: Path, capsys) -> None:
     """End to end: the take as a Z-up Motive export, the joint log as a CSV, no --time-offset."""
     from cobra_cli.main import main
-    from cobra_model.runs import read_run
+    from cobra_model.run_files import read_run
 
     take, (t_log, q, _) = recording
     head = take.bodies["head"]

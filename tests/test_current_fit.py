@@ -12,8 +12,8 @@ from cobra_model.errors import InputError
 from hardware.units import current_units_to_amp
 from integrators.simulate import simulate_gait
 from cobra_model.servo import PULSES_PER_REV
-from sysid.lsq import fit_lsq
-from sysid.objective import Objective, Weights
+from sysid.identification.lsq import fit_lsq
+from sysid.identification.objective import Objective, Weights
 
 NOMINAL = ModelParameters.nominal()
 TRUTH = NOMINAL.with_values(motor_km=0.9 * NOMINAL.motor_km, joint_damping=1.5 * NOMINAL.joint_damping)
@@ -62,7 +62,7 @@ def test_fitting_the_current_needs_it_in_every_run(runs) -> None:
 @pytest.mark.slow
 def test_cli_fit_with_current_prints_both_intervals(runs, tmp_path, capsys) -> None:
     from cobra_cli.main import main
-    from cobra_model.runs import write_run
+    from cobra_model.run_files import write_run
     paths = [str(write_run(r, tmp_path / f"r{i}.csv")) for i, r in enumerate(runs)]
     out = tmp_path / "fit.json"
     assert main(["fit", *paths[:2], "--holdout", paths[2], "--free", "motor_km,joint_damping", "--current",

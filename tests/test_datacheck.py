@@ -12,13 +12,14 @@ from cobra_cli.cmd_fit import bound_warnings
 from cobra_cli.main import main
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
-from cobra_model.runs import Run, write_run
+from cobra_model.run import Run
+from cobra_model.run_files import write_run
 from integrators.simulate import simulate_gait
-from sysid.datacheck import (FLAT_LOADING, DataCheck, analyse_jacobian, apply, check_runs, inspect_run,
+from sysid.identification.datacheck import (FLAT_LOADING, DataCheck, analyse_jacobian, apply, check_runs, inspect_run,
                              unit_jacobian)
-from sysid.effects import EffectLibrary
-from sysid.lsq import FD_STEP, FitResult, FitStatus, ParameterReport, uncertainty
-from sysid.objective import Objective
+from sysid.discrepancy.effects import EffectLibrary
+from sysid.identification.lsq import FD_STEP, FitResult, FitStatus, ParameterReport, uncertainty
+from sysid.identification.objective import Objective
 
 #: The nominal model with a torque limit at the servo's stall torque (9.9 N m): the gait demands
 #: about 4 N m, so the limit never acts and no run can see it (its Jacobian column is exactly 0).

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from cobra_model.runs import read_run
-from sysid.dataset import DATA_DIR, generate, load_manifest
+from cobra_model.run_files import read_run
+from sysid.generators.dataset import DATA_DIR, generate, load_manifest
 
 
 @pytest.mark.slow

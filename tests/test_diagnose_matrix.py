@@ -11,7 +11,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.diagnose_matrix import MUJOCO_OPTIONS, jobs_for, summary  # noqa: E402
 from cobra_model.errors import InputError  # noqa: E402
-from sysid.plots import plot_confusion  # noqa: E402
+from sysid.gap.plots import plot_confusion  # noqa: E402
 
 
 def _row(engine: str, effect: str | None, named: str | None, shrink: float = 0.9, wall: float = 40.0) -> dict:

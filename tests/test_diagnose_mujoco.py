@@ -1,13 +1,13 @@
 """The discrepancy workflow on runs MuJoCo made: an effect with a joint-side signature is named.
 
-MuJoCo's twin (``sysid.mujoco_recording``: body-aligned capsule contacts, its own solver and soft
+MuJoCo's twin (``sysid.generators.mujoco_recording``: body-aligned capsule contacts, its own solver and soft
 contact, linearised saturating servos) with the robot's parameter error of
 ``tests/test_diagnose_names.py`` and one effect the library knows, expressed on MuJoCo's side:
 commands delayed by a 40 ms buffer, every encoder reading 0.03 rad more than the joint angle
 (the servo loop holding its goal in readings), or a joint friction (``frictionloss``) of 0.3 N m.
 The friction's signature is a few mrad in the joints while MuJoCo's ground leaves centimetres in
 the head path: it is named only because the workflow down-weights the head channel to what the
-fitted model leaves unexplained in it (``sysid.diagnose.balanced_weights``). Two training runs (0.5, 0.65 Hz) and one
+fitted model leaves unexplained in it (``sysid.discrepancy.diagnose.balanced_weights``). Two training runs (0.5, 0.65 Hz) and one
 held-out run (0.5 Hz) of 3 s, seed 21. The ground parameters are free as well: the fit must
 bend our ground toward MuJoCo's contact before an effect can be judged.
 """
@@ -19,9 +19,9 @@ import numpy as np
 import pytest
 
 from cobra_model import CobraModel, ModelParameters
-from sysid.dataset import RunPlan
-from sysid.diagnose import DiagnoseConfig, diagnose
-from sysid.mujoco_recording import record_mujoco, twin_options
+from sysid.generators.dataset import RunPlan
+from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
+from sysid.generators.mujoco_recording import record_mujoco, twin_options
 
 pytestmark = pytest.mark.slow
 pytest.importorskip("mujoco")

@@ -13,9 +13,9 @@ import pytest
 
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
-from sysid.dataset import RunPlan, record
-from sysid.diagnose import DiagnoseConfig, diagnose
-from sysid.effects import EffectLibrary
+from sysid.generators.dataset import RunPlan, record
+from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
+from sysid.discrepancy.effects import EffectLibrary
 
 LIBRARY = EffectLibrary()
 #: Each effect's realistic magnitude (SI units of its parameter), as benchmarks/diagnose_accuracy.py hides it.

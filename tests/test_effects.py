@@ -9,8 +9,8 @@ import pytest
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from integrators.simulate import simulate_gait
-from sysid.effects import EFFECTS, EffectLibrary, parse_effects
-from sysid.signature import localise
+from sysid.discrepancy.effects import EFFECTS, EffectLibrary, parse_effects
+from sysid.discrepancy.signature import localise
 
 ISSUE_NAMES = ("joint_coulomb_friction", "backlash", "actuator_delay", "torque_saturation",
                "anisotropic_ground_friction", "encoder_offset", "link_mass_error")
@@ -80,7 +80,7 @@ def test_screening_starts_lie_between_inactive_and_the_bounds(effect):
     """Every effect is tried from values where it acts, on each side it can act, within its
     bounds; a torque limit is tried at fractions of the torque the model demands, finest just
     below it, where a limit starts to act."""
-    from sysid.diagnose import start_grid
+    from sysid.discrepancy.diagnose import start_grid
 
     p = effect.parameter
     demand = 4.0 if effect.acts_below_demand else None

@@ -13,7 +13,7 @@ from typing import Iterator
 import pytest
 
 from cobra_cli import cmd_compare, cmd_emulate, cmd_record
-from cobra_model.runs import read_run
+from cobra_model.run_files import read_run
 from hardware.config import EXAMPLE_CONFIG as EXAMPLE
 
 REPO = Path(__file__).resolve().parent.parent

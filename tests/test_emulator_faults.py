@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 
 from cobra_model.gait import SidewindingGait
-from cobra_model.runs import read_run
+from cobra_model.run_files import read_run
 from hardware import control_table as ct
 from hardware.config import BusConfig, JointConfig
 from hardware.driver import ConnectError, DynamixelBus
@@ -31,7 +31,7 @@ from hardware.plant import KinematicPlant
 from hardware.recorder import RecordResult, StopReason, record_gait
 from hardware.runwriter import UNFINISHED_NOTE
 from integrators.simulate import simulate_like
-from sysid.metrics import compare_runs
+from sysid.gap.metrics import compare_runs
 
 GAIT = SidewindingGait(freq_hz=0.5, ramp_s=0.5)
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from cobra_model.gait import SidewindingGait
-from cobra_model.runs import read_run
+from cobra_model.run_files import read_run
 from hardware.config import BusConfig
 from hardware.emulator import EmulatorProcess
 from hardware.plant import SimulatorPlant

@@ -11,7 +11,8 @@ import numpy as np
 import pytest
 
 from cobra_model.errors import InputError
-from cobra_model.runs import Run, read_run, write_run
+from cobra_model.run import Run
+from cobra_model.run_files import read_run, write_run
 from hardware.runwriter import UNFINISHED_NOTE, IncrementalRunWriter, RunWriteError
 
 REPO = Path(__file__).resolve().parent.parent

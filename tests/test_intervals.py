@@ -1,4 +1,4 @@
-"""HAC intervals and the residual whiteness test (sysid.intervals), and how a fit reports them."""
+"""HAC intervals and the residual whiteness test (sysid.identification.intervals), and how a fit reports them."""
 from __future__ import annotations
 
 import dataclasses
@@ -8,11 +8,11 @@ import pytest
 
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
-from sysid.dataset import RunPlan, record
-from sysid.intervals import (Whiteness, bartlett_bandwidth, check_blocks, long_run_covariance, prewhiten,
+from sysid.generators.dataset import RunPlan, record
+from sysid.identification.intervals import (Whiteness, bartlett_bandwidth, check_blocks, long_run_covariance, prewhiten,
                              sandwich_covariance, whiteness)
-from sysid.lsq import fit_lsq
-from sysid.objective import Objective, Simulated, Weights, current_rows, residual_blocks, residual_vector
+from sysid.identification.lsq import fit_lsq
+from sysid.identification.objective import Objective, Simulated, Weights, current_rows, residual_blocks, residual_vector
 
 
 def ar1(rng: np.random.Generator, rho: float, shape: tuple[int, ...]) -> np.ndarray:

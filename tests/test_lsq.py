@@ -7,10 +7,10 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.errors import InputError
 from integrators.simulator import Simulator
-from sysid.dataset import RunPlan, record
-from sysid.executor import LocalExecutor, RayExecutor
-from sysid.lsq import fit_lsq, uncertainty
-from sysid.objective import Objective
+from sysid.generators.dataset import RunPlan, record
+from sysid.identification.executor import LocalExecutor, RayExecutor
+from sysid.identification.lsq import fit_lsq, uncertainty
+from sysid.identification.objective import Objective
 
 TRUTH = ModelParameters.nominal().with_values(mu_c=0.22, mu_s=0.34, joint_damping=0.25, motor_km=0.0095)
 
@@ -145,7 +145,7 @@ class _LinearObjective:
 
 @pytest.mark.parametrize("radius, first_steps", [(0.1, [0.1, 0.2]), (1.0, [0.36])])
 def test_the_trust_region_starts_small_and_grows_where_the_model_predicts_well(radius, first_steps):
-    from sysid.lsq import _levenberg_marquardt
+    from sysid.identification.lsq import _levenberg_marquardt
     params = ModelParameters.nominal().with_frozen(free=["k1"])
     z0 = params.to_unit()
     objective = _LinearObjective(params, z0 + 0.36)

@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 from cobra_model.errors import InputError
-from cobra_model.runs import NUM_JOINTS, Run
-from sysid.metrics import (
+from cobra_model.run import NUM_JOINTS, Run
+from sysid.gap.metrics import (
     DEFAULT_WINDOW_S,
     compare_runs,
     correlation_summary,

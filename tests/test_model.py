@@ -7,7 +7,6 @@ import pytest
 
 from cobra_model import design, servo
 from cobra_model.errors import InputError
-from cobra_model.model import CobraModel
 from integrators import mujoco_twin
 
 

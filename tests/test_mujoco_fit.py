@@ -1,6 +1,6 @@
 """The base fit on runs MuJoCo made (no effect added): what it recovers of another engine's contact.
 
-MuJoCo's twin (sysid.mujoco_recording) touches the ground through body-aligned capsule pairs with a
+MuJoCo's twin (sysid.generators.mujoco_recording) touches the ground through body-aligned capsule pairs with a
 pyramidal friction cone: a diamond-shaped friction limit in the ground plane and hemispherical
 module ends. Our paper's law is a box limit on sharp cylinder rims; with the limit's shape
 (``friction_cone``) and the ends' rounding (``contact_rounding``) free, the fit must find
@@ -14,11 +14,11 @@ import pytest
 from cobra_model import design
 from cobra_model.parameters import ModelParameters
 from integrators.simulate import simulate_like
-from sysid.dataset import RunPlan
-from sysid.lsq import fit_lsq
-from sysid.metrics import compare_runs
-from sysid.mujoco_recording import record_mujoco, stiff_contact, twin_options
-from sysid.objective import Objective, Weights
+from sysid.generators.dataset import RunPlan
+from sysid.identification.lsq import fit_lsq
+from sysid.gap.metrics import compare_runs
+from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_options
+from sysid.identification.objective import Objective, Weights
 
 pytestmark = pytest.mark.slow
 mujoco = pytest.importorskip("mujoco")

@@ -1,4 +1,4 @@
-"""How the discrepancy workflow names a candidate (sysid.diagnose.choose), on given fit results."""
+"""How the discrepancy workflow names a candidate (sysid.discrepancy.diagnose.choose), on given fit results."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -8,8 +8,8 @@ import pytest
 
 from cobra_model import ModelParameters
 from cobra_model.errors import InputError
-from sysid.diagnose import Baseline, Candidate, DiagnoseConfig, choose, diagnose
-from sysid.effects import EffectLibrary
+from sysid.discrepancy.diagnose import Baseline, Candidate, DiagnoseConfig, choose, diagnose
+from sysid.discrepancy.effects import EffectLibrary
 
 N = 4000  # training residuals
 BASELINE = Baseline(train_rss=10_000.0, held_out_runs=np.array([100.0, 100.0, 100.0]))

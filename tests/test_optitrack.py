@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from cobra_model.errors import InputError
-from cobra_model.runs import NUM_JOINTS, joint_columns, read_run, write_run
-from sysid.optitrack import (
+from cobra_model.run import NUM_JOINTS, joint_columns
+from cobra_model.run_files import read_run, write_run
+from cobra_model.motive import (
     Y_UP_TO_Z_UP,
     merge_take_and_joints,
     quat_from_matrix,

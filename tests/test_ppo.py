@@ -14,10 +14,10 @@ from gymnasium.utils.env_checker import check_env
 from cobra_model.gait import SidewindingGait
 from cobra_model.parameters import ModelParameters
 from integrators.simulate import simulate_gait, simulate_like
-from sysid.env import ParameterTuningEnv
-from sysid.lsq import FitStatus
-from sysid.objective import Objective, ObjectiveTerms
-from sysid.ppo import fit_ppo, single_threaded
+from sysid.identification.env import ParameterTuningEnv
+from sysid.identification.lsq import FitStatus
+from sysid.identification.objective import Objective, ObjectiveTerms
+from sysid.identification.ppo import fit_ppo, single_threaded
 
 FREE = ["mu_c", "joint_damping"]
 

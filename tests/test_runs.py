@@ -10,18 +10,9 @@ import numpy as np
 import pytest
 
 from cobra_model.errors import InputError
-from cobra_model.runs import (
-    BODY_NAMES,
-    FORMAT,
-    NUM_JOINTS,
-    Run,
-    interpolate_quaternions,
-    interpolate_rows,
-    joint_columns,
-    read_run,
-    resample_run,
-    write_run,
-)
+from cobra_model.resample import interpolate_quaternions, interpolate_rows, resample_run
+from cobra_model.run import BODY_NAMES, FORMAT, NUM_JOINTS, Run, joint_columns
+from cobra_model.run_files import read_run, write_run
 
 HEADER = (
     ["t", *joint_columns("q_ref"), *joint_columns("q")]

@@ -1,4 +1,4 @@
-"""Where the discrepancy workflow starts a candidate's refit (sysid.diagnose.screening_start)."""
+"""Where the discrepancy workflow starts a candidate's refit (sysid.discrepancy.diagnose.screening_start)."""
 from __future__ import annotations
 
 import numpy as np
@@ -6,11 +6,11 @@ import pytest
 
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
-from sysid.dataset import RunPlan, record
-from sysid.diagnose import screening_start, torque_demand, unbent
-from sysid.effects import EffectLibrary
-from sysid.lsq import fit_lsq
-from sysid.objective import Objective
+from sysid.generators.dataset import RunPlan, record
+from sysid.discrepancy.diagnose import screening_start, torque_demand, unbent
+from sysid.discrepancy.effects import EffectLibrary
+from sysid.identification.lsq import fit_lsq
+from sysid.identification.objective import Objective
 
 LIBRARY = EffectLibrary()
 FREE = ["mu_c", "joint_damping", "motor_km"]

@@ -7,11 +7,11 @@ import numpy as np
 import pytest
 
 from cobra_model import CobraModel, ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators.simulate import InitialPose, StartObservation, command_ticks
 from integrators.simulator import Simulator
-from sysid.dataset import RunPlan, record
-from sysid.objective import Objective
+from sysid.generators.dataset import RunPlan, record
+from sysid.identification.objective import Objective
 
 
 @pytest.fixture(scope="module")
@@ -125,8 +125,8 @@ def test_a_run_is_reproduced_from_where_its_joints_really_were():
     joint would start 0.05 rad off and the fitted heading 7 deg off."""
     from cobra_model import SidewindingGait
     from integrators.simulate import simulate_gait, simulate_like
-    from sysid.effects import EffectLibrary
-    from sysid.metrics import compare_runs
+    from sysid.discrepancy.effects import EffectLibrary
+    from sysid.gap.metrics import compare_runs
 
     params = EffectLibrary().transform(ModelParameters.nominal(), {"encoder_offset": 0.05}, frozen=True)
     run = simulate_gait(SidewindingGait(0.5), 3.0, params=params, heading_rad=0.4)

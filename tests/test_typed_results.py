@@ -8,11 +8,11 @@ import pytest
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import EFFECT_PARAMETERS, ModelParameters, effect_parameter
-from sysid.diagnose import NamedEffect, StructuralDifference
-from sysid.intervals import Whiteness
-from sysid.lsq import FitResult, FitStatus, IterationLog, ParameterReport
-from sysid.objective import ObjectiveTerms, Weights
-from sysid.report import GapSummary
+from sysid.discrepancy.diagnose import NamedEffect, StructuralDifference
+from sysid.identification.intervals import Whiteness
+from sysid.identification.lsq import FitResult, FitStatus, IterationLog, ParameterReport
+from sysid.identification.objective import ObjectiveTerms, Weights
+from sysid.gap.report import GapSummary
 
 
 def through_text(doc: dict) -> dict:

@@ -25,7 +25,8 @@ from PIL import Image
 from cobra_cli import cmd_replay
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
-from cobra_model.runs import Run, write_run
+from cobra_model.run import Run
+from cobra_model.run_files import write_run
 from viz.replay import record_replay, serve_replay, write_replay_html
 from viz.scene import ReplayScene
 from viz.tracks import GHOST_COLOURS, MEASURED_COLOUR, frame_samples, hold_last_valid, make_tracks

@@ -77,7 +77,7 @@ def test_the_model_loads_from_the_wheel_not_the_checkout(installed):
     bin_dir, work = installed
     out = _run([str(bin_dir / "python"), "-c",
                 "from cobra_model import CobraModel; from cobra_model.design import DEFAULT_URDF_PATH; "
-                "from sysid.dataset import DATA_DIR; from hardware.config import EXAMPLE_CONFIG, load_bus_config; "
+                "from sysid.generators.dataset import DATA_DIR; from hardware.config import EXAMPLE_CONFIG, load_bus_config; "
                 "m = CobraModel.load(); c = load_bus_config(EXAMPLE_CONFIG); "
                 "print(m.n_joints, len(c.servo_ids)); print(DEFAULT_URDF_PATH); print(DATA_DIR); print(EXAMPLE_CONFIG)"],
                cwd=work, env=_env())

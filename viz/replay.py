@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cobra_model.model import CobraModel
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from viz.tracks import make_tracks
 
 if TYPE_CHECKING:

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from cobra_model.errors import InputError
-from cobra_model.runs import Run
+from cobra_model.run import Run
 
 #: RGB in [0, 1] of the measured run's trail, markers, final-position ball and legend entry
 #: (red, as the paper's ball where the real robot ended).

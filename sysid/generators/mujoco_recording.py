@@ -6,7 +6,7 @@ ground), another integrator, linearised position servos (with the PWM duty limit
 of our PWM-driven DC motors.
 A run starts at rest on the ground in the gait's initial pose, exactly where our simulator
 would start it (``Simulator.rest_state``), the servos follow the sidewinding commands, and the
-trajectory is measured by :func:`sysid.dataset.measure`, like the reference dataset (quantised
+trajectory is measured by :func:`sysid.generators.dataset.measure`, like the reference dataset (quantised
 encoders, 50 Hz joint log with jitter, mocap noise and dropouts, tracked bodies).
 
 :func:`twin_options` maps our parameters onto the twin (armature, joint damping, Coulomb ground
@@ -28,16 +28,16 @@ from cobra_model.errors import InputError
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators import mujoco_twin
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulator import SimulationDiverged, Simulator
-from sysid.dataset import RunPlan, measure
+from sysid.generators.dataset import RunPlan, measure
 
 if TYPE_CHECKING:
     import mujoco
 
-#: Interval [s] of the samples handed to :func:`sysid.dataset.measure` (as the reference
+#: Interval [s] of the samples handed to :func:`sysid.generators.dataset.measure` (as the reference
 #: dataset's simulator records), whatever the twin's time step.
 RECORD_DT_S = 0.002
 
@@ -151,7 +151,7 @@ def record_mujoco(run_plan: RunPlan, options: TwinOptions, rng: np.random.Genera
     Args:
         run_plan: gait frequency [Hz], duration [s], initial head (x, y) [m] and yaw [rad].
         options: the twin (its effects); see :func:`twin_options`.
-        rng: measurement noise source (same draws as :func:`sysid.dataset.record`).
+        rng: measurement noise source (same draws as :func:`sysid.generators.dataset.record`).
         model: our model of the same URDF (initial pose, tracked bodies).
         params: servo gains through ``motor_km`` (default nominal).
 

@@ -23,7 +23,7 @@ lacks it; adding the parameter to a :class:`ModelParameters` switches the effect
 
 A fitted value outside the last column (the reasons are beside each :class:`Effect` below), or
 on a bound, is no physical value of the effect: the workflow reports it as a proxy for a
-structural difference instead of naming it (``sysid.diagnose.choose``).
+structural difference instead of naming it (``sysid.discrepancy.diagnose.choose``).
 """
 from __future__ import annotations
 
@@ -45,16 +45,16 @@ class Effect:
         start: where a fit starts it (inside the bounds, where the effect acts).
         enters: how it enters the dynamics or the measurement.
         signature: the residual signature it predicts, in words.
-        features: the localisation numbers (keys of :class:`sysid.signature.Signature`) whose
+        features: the localisation numbers (keys of :class:`sysid.discrepancy.signature.Signature`) whose
             magnitude indicates it, with a sign (+1: large is evidence, -1: small is evidence).
         bends: the parameter groups (``"actuator"``, ``"ground"``) that a fit of a model lacking
             the effect bends to mimic it; empty: any free parameter. The screening profiles the
             effect on the fitted model with just these put back to their values before the fit
-            (``sysid.diagnose.screening_start``).
+            (``sysid.discrepancy.diagnose.screening_start``).
         acts_below_demand: the parameter is a limit on the joints' motor torque [N m], which
             changes nothing above the largest torque the model demands and acts sharply just
             below it; its screening starts are placed at fractions of that demand
-            (``sysid.diagnose.start_grid``) instead of fractions of its range.
+            (``sysid.discrepancy.diagnose.start_grid``) instead of fractions of its range.
         realistic: a realistic magnitude of the effect on COBRA (parameter units), at which the
             benchmarks and tests hide it.
         plausible: the values (parameter units) the physical effect can take on COBRA. A fit
@@ -172,6 +172,10 @@ class EffectLibrary:
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(e.name for e in self.effects)
+
+    def help_text(self) -> str:
+        """``joint_coulomb_friction [N m], backlash [rad], ...``: each effect with its value's unit."""
+        return ", ".join(f"{e.name} [{e.parameter.unit}]" for e in self.effects)
 
     def get_feature_names(self) -> list[str]:
         """Effect names with their parameter: ``joint_coulomb_friction(joint_coulomb [N m])``."""

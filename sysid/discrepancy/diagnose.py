@@ -1,12 +1,12 @@
 """The discrepancy workflow: fit, localise, try candidate effects, name one, refit, show the gap.
 
-1. **Fit** the current model by least squares (:func:`sysid.lsq.fit_lsq`) on the training runs;
+1. **Fit** the current model by least squares (:func:`sysid.identification.lsq.fit_lsq`) on the training runs;
    if its head-path residual outweighs its joints', weight the head channel down for every later
    fit and judgement (:func:`balanced_weights`: another engine's or the real ground leaves an
    unexplained head drift that would drown a joint-side effect).
 2. **Localise** the disagreement of the fitted model on training and held-out runs
-   (:func:`sysid.signature.localise`).
-3. **Try every candidate** of the :class:`sysid.effects.EffectLibrary`: add its parameter to the
+   (:func:`sysid.discrepancy.signature.localise`).
+3. **Try every candidate** of the :class:`sysid.discrepancy.effects.EffectLibrary`: add its parameter to the
    fitted model and refit it together with the free parameters (few iterations). The refit
    starts from the best of: the effect inactive, the effect at a small grid of values between
    inactive and its bounds (a torque limit at fractions of the torque the model demands, below
@@ -30,7 +30,7 @@
    to the basin, not to the effect, and the refit without it finds that basin too. That fit
    joins the baseline and the candidates are judged again against it.
    A candidate that would be named but whose fitted value is no physical value of its effect
-   (:meth:`sysid.effects.Effect.implausible`) is a proxy for a difference of another structure:
+   (:meth:`sysid.discrepancy.effects.Effect.implausible`) is a proxy for a difference of another structure:
    it is reported in ``structural`` and the verdict, not named, and the next candidate is checked.
    Otherwise the report says that no candidate explains the gap and describes the signature.
 5. **Add it and refit** all free parameters with the effect on the whole training runs, starting
@@ -49,14 +49,14 @@ from cobra_model.servo import SERVO_GEAR_RATIO
 from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators.simulate import rollout_like, simulate_like
 from integrators.simulator import Simulator
-from sysid.effects import Effect, EffectLibrary
-from sysid.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
-from sysid.objective import Objective, Weights
-from sysid.report import GapSummary, HeldOut, head_text, pair_held_out
-from sysid.signature import Signature, localise
+from sysid.discrepancy.effects import Effect, EffectLibrary
+from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
+from sysid.identification.objective import Objective, Weights
+from sysid.gap.report import GapSummary, HeldOut, head_text, pair_held_out
+from sysid.discrepancy.signature import Signature, localise
 
 
 @dataclass(frozen=True)
@@ -101,7 +101,7 @@ class Candidate:
     the held-out one (whole runs) and ``held_out_runs`` its per-run terms; ``added`` counts the
     parameters the effect adds; ``refit_without`` tells whether its model was refitted without
     the effect (:func:`choose`); ``implausible`` says why its fitted value is no physical value
-    of the effect (:meth:`sysid.effects.Effect.implausible`; None: it is one). The evidence
+    of the effect (:meth:`sysid.discrepancy.effects.Effect.implausible`; None: it is one). The evidence
     fields are relative to a :class:`Baseline` (:meth:`judged`).
     """
 
@@ -162,7 +162,7 @@ class NamedEffect:
     """An effect the workflow named, its fitted parameter and the evidence for it.
 
     Attributes:
-        name: the effect (``sysid.effects``); parameter, value, unit: its fitted parameter.
+        name: the effect (``sysid.discrepancy.effects``); parameter, value, unit: its fitted parameter.
         ci95: the parameter's 95 % interval (None if the fit gave none).
         held_out_cost_reduction: fraction of the held-out cost removed by adding it.
         held_out_runs_improved: held-out runs whose cost fell; delta_bic: BIC change (training).
@@ -419,7 +419,7 @@ def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: 
 
 def unbent(effect: Effect, current: ModelParameters, before: ModelParameters) -> ModelParameters:
     """``current`` with the free parameters of ``before`` that ``effect`` bends (its
-    :attr:`~sysid.effects.Effect.bends` groups; all of them if it names none) put back to their
+    :attr:`~sysid.discrepancy.effects.Effect.bends` groups; all of them if it names none) put back to their
     values in ``before``, the parameter set the base fit started from. Effects found so far and
     the parameters of other groups keep their fitted values."""
     names = [p for p in before.free_names if not effect.bends or before[p].group in effect.bends]

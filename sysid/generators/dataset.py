@@ -14,7 +14,7 @@ discrepancy workflow's job). Measurement is realistic:
   headings and positions, each at least three gait cycles long; one run per gait held out for
   validation (``manifest.json``).
 
-Regenerate with ``python -m sysid.dataset --out DIR`` (``--force`` to overwrite; ``tests/test_dataset.py``
+Regenerate with ``python -m sysid.generators.dataset --out DIR`` (``--force`` to overwrite; ``tests/test_dataset.py``
 checks that the shipped files are what the generator writes).
 """
 from __future__ import annotations
@@ -31,7 +31,9 @@ from cobra_model.errors import InputError
 from cobra_model.gait import PAPER_FREQUENCIES_HZ, SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters, effect_parameter
-from cobra_model.runs import Run, interpolate_quaternions, interpolate_rows, read_run, write_run
+from cobra_model.resample import interpolate_quaternions, interpolate_rows
+from cobra_model.run import Run
+from cobra_model.run_files import write_run
 from cobra_model.servo import RAD_PER_PULSE
 from cobra_model.shipped import shipped_path
 from integrators.simulate import TRACKED_BODIES
@@ -201,7 +203,7 @@ def generate(out_dir: Path, *, force: bool = False, progress: Callable[[str], No
         paths.append(write_run(record(sim, rp, rng, model), out_dir / f"{rp.name}.csv", force=force))
     manifest = {
         "format": "cobra-dataset/1",
-        "description": "COBRA reference dataset (stand-in hardware runs); see sysid/dataset.py",
+        "description": "COBRA reference dataset (stand-in hardware runs); see sysid/generators/dataset.py",
         "train": [f"{rp.name}.csv" for rp in plans if rp.split == "train"],
         "validation": [f"{rp.name}.csv" for rp in plans if rp.split == "validation"],
         "runs": {f"{rp.name}.csv": {"frequency_hz": rp.freq_hz, "duration_s": rp.duration_s,

@@ -1,4 +1,4 @@
-"""Identification by PPO (stable-baselines3) on :class:`sysid.env.ParameterTuningEnv`.
+"""Identification by PPO (stable-baselines3) on :class:`sysid.identification.env.ParameterTuningEnv`.
 
 The paper tunes the parameters with Proximal Policy Optimization: the state is the parameter
 vector, an action modifies it and the reward is the negative identification objective. Here
@@ -43,12 +43,12 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
-from sysid.env import ParameterTuningEnv
-from sysid.executor import LocalExecutor
-from sysid.lsq import FitResult, FitStatus, ParameterReport
-from sysid.objective import Objective, ObjectiveTerms
+from sysid.identification.env import ParameterTuningEnv
+from sysid.identification.executor import LocalExecutor
+from sysid.identification.lsq import FitResult, FitStatus, ParameterReport
+from sysid.identification.objective import Objective, ObjectiveTerms
 
-#: A unit coordinate closer than this to 0 or 1 counts as at a bound (as in :mod:`sysid.lsq`).
+#: A unit coordinate closer than this to 0 or 1 counts as at a bound (as in :mod:`sysid.identification.lsq`).
 AT_BOUND_UNIT = 1e-3
 
 
@@ -112,7 +112,7 @@ class PPOSettings:
     hidden: tuple[int, ...] = (32, 32)
 
     def env_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`sysid.env.ParameterTuningEnv`."""
+        """Keyword arguments of :class:`sysid.identification.env.ParameterTuningEnv`."""
         return {"episode_length": self.episode_length, "max_step": self.max_step,
                 "start_jitter": self.start_jitter, "observe_terms": self.observe_terms,
                 "start_from_best": self.start_from_best}
@@ -126,7 +126,7 @@ class EnvFactory:
 
     Attributes:
         objective: the objective (a :func:`single_threaded` copy; each worker unpickles its own).
-        env_kwargs: keyword arguments of :class:`sysid.env.ParameterTuningEnv`.
+        env_kwargs: keyword arguments of :class:`sysid.identification.env.ParameterTuningEnv`.
     """
 
     objective: Objective
@@ -141,7 +141,7 @@ def single_threaded(objective: Objective) -> Objective:
     """An in-process copy of ``objective`` whose batched simulation runs on one thread.
 
     The environments are the parallelism of :func:`fit_ppo`. Threads inside an evaluation
-    (Pinocchio's ABA pool, which :class:`sysid.objective.Objective` sizes to 2 for an in-process
+    (Pinocchio's ABA pool, which :class:`sysid.identification.objective.Objective` sizes to 2 for an in-process
     executor, and numba's ``prange`` kernels, sized by :func:`numba.set_num_threads`) meet at a
     barrier every physics step, so they stall whenever another process holds a core: measured
     with one core busy, a 0.5 s run took 0.12-0.35 s per evaluation with two threads and

@@ -12,10 +12,10 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators.simulate import simulate_like
 from cobra_model.parameters import ModelParameters
-from sysid.metrics import GapReport, compare_runs
+from sysid.gap.metrics import GapReport, compare_runs
 
 CSS = ("body{font-family:sans-serif;max-width:1100px;margin:2em auto;color:#222}"
        "table{border-collapse:collapse;margin:1em 0}td,th{border:1px solid #ccc;padding:4px 8px;text-align:right}"
@@ -118,14 +118,13 @@ class GapSummary:
     @classmethod
     def of(cls, gaps: Mapping[str, GapReport]) -> "GapSummary":
         """The summary of the gaps of named runs."""
-        per_run = {name: g.to_json_dict() for name, g in gaps.items()}
+        def mean(values: Sequence[float]) -> float | None:
+            finite = [v for v in values if np.isfinite(v)]
+            return float(np.mean(finite)) if finite else None
 
-        def mean(key: str) -> float | None:
-            values = [g[key] for g in per_run.values() if g[key] is not None]
-            return float(np.mean(values)) if values else None
-
-        return cls(mean("head_final_error_m"), mean("head_mean_error_m"),
-                   float(np.mean([g["joint_rmse_rad"]["mean"] for g in per_run.values()])), per_run)
+        return cls(mean([g.head.final for g in gaps.values()]), mean([g.head.mean for g in gaps.values()]),
+                   float(np.mean([g.mean_joint_rmse for g in gaps.values()])),
+                   {name: g.to_json_dict() for name, g in gaps.items()})
 
     def to_json(self) -> dict:
         """``{"mean": {...}, "runs": {...}}`` as in ``diagnosis.json``."""
@@ -141,7 +140,7 @@ class GapSummary:
 
 def held_out_figures(held: Sequence[HeldOut], out_dir: Path, labels: tuple[str, str], report: HtmlReport) -> None:
     """Per-gait error bars, head paths, joint responses, correlation and the replay of one run."""
-    from sysid import plots
+    from sysid.gap import plots
     from viz.replay import write_replay_html
 
     b, a = labels

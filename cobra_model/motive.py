@@ -35,20 +35,17 @@ from pathlib import Path
 import numpy as np
 
 from cobra_model.errors import InputError
-from cobra_model.runs import (
+from cobra_model.resample import interpolate_quaternions, interpolate_rows
+from cobra_model.run import (
     BODY_NAMES,
     FORMAT,
     NUM_JOINTS,
     QUAT_NORM_TOL,
-    CsvTable,
     Run,
     first_non_increasing,
-    interpolate_quaternions,
-    interpolate_rows,
     joint_columns,
-    read_csv_table,
-    read_run,
 )
+from cobra_model.run_files import CsvTable, read_csv_table, read_run
 
 #: Rotation from Motive's Y-up world to this project's Z-up world (+90 deg about x).
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -328,7 +325,7 @@ def _rigid_bodies(table: CsvTable, labels: list[str], columns: dict[str, BodyCol
 def read_joint_log(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
     """Read joint angles from a ``cobra-run/1`` run or from a plain CSV ``t, q_1..q_11[, q_ref_*]``.
 
-    A file whose header has ``head_x`` is read as a run (:func:`cobra_model.runs.read_run`);
+    A file whose header has ``head_x`` is read as a run (:func:`cobra_model.run_files.read_run`);
     otherwise ``t`` and ``q_1..q_11`` are required, ``q_ref_1..q_ref_11`` optional (all or none)
     and other columns ignored.
 

@@ -18,25 +18,27 @@ its command's frequency; ``cobra compare`` reports the free-frequency fit.
 Evaluation is batched: all (parameter vector, run) pairs step together in one
 :class:`integrators.batch.BatchSimulator` (vectors that differ in the transmission inertia, a
 link mass or the command delay included), and chunks of parameter vectors are spread over an
-:class:`sysid.executor.Executor`.
+:class:`sysid.identification.executor.Executor`.
 """
 from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Mapping, Sequence
 
 import numpy as np
 
 from cobra_model.errors import InputError
-from cobra_model.model import CobraModel
+from cobra_model.model import DEFAULT_URDF, CobraModel
 from cobra_model.parameters import ModelParameters
-from cobra_model.runs import Run, interpolate_rows
+from cobra_model.resample import interpolate_rows
+from cobra_model.run import Run
 from integrators import kernels as K
 from integrators.batch import BatchSimulator
 from integrators.simulate import InitialPose, StartObservation, command_ticks
 from integrators.simulator import SimSettings, SimState, delay_commands
-from sysid.executor import Executor, LocalExecutor
+from sysid.identification.executor import Executor, LocalExecutor
 
 
 @dataclass(frozen=True)
@@ -131,12 +133,13 @@ class ObjectiveSpec:
     params: ModelParameters
     weights: Weights
     settings: SimSettings
+    urdf: Path | None  # None: the shipped COBRA, found where each process has it installed
     threads: int = 2
 
 
 def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
     """Simulate every run for each row of ``X`` (k, d) of free-parameter values (physical units)."""
-    model = CobraModel.load()
+    model = CobraModel.load(spec.urdf or DEFAULT_URDF)  # once per process and file (cached)
     sets = [spec.params.update_from_vector(x) for x in np.atleast_2d(X)]
     targets = spec.targets
     n_runs = len(targets)
@@ -351,6 +354,7 @@ class Objective:
         threads: threads of one batched evaluation (default: 2 in-process, 1 per worker
             process). Threads meet at a barrier every physics step, so use 1 when other
             processes share the cores (e.g. PPO's environment processes).
+        model: the robot (default: ``urdf/cobra.urdf``); worker processes load the same file.
     """
 
     runs: Sequence[Run]
@@ -359,6 +363,7 @@ class Objective:
     settings: SimSettings = field(default_factory=SimSettings)
     executor: Executor = field(default_factory=lambda: LocalExecutor(1))
     threads: int | None = None
+    model: CobraModel = field(default_factory=CobraModel.load)
     evaluations: int = 0
 
     def __post_init__(self) -> None:
@@ -371,16 +376,18 @@ class Objective:
             if missing:
                 raise InputError(f"fitting the motor current needs current_1..current_11 columns in every run; "
                                  f"none in {', '.join(missing)}")
-        model = CobraModel.load()
-        self.spec = ObjectiveSpec(tuple(RunTarget.of_run(r, self.settings, self.weights.sample_hz, model)
+        if self.model.urdf_path is None:
+            raise InputError("the objective's model must come from a URDF file (worker processes load it)")
+        self.spec = ObjectiveSpec(tuple(RunTarget.of_run(r, self.settings, self.weights.sample_hz, self.model)
                                         for r in self.runs),
                                   self.params, self.weights, self.settings,
+                                  None if self.model.urdf_path == DEFAULT_URDF.resolve() else self.model.urdf_path,
                                   threads=self.threads or (2 if self.executor.workers == 1 else 1))
 
     def truncated(self, seconds: float) -> "Objective":
         """The same objective over each run's first ``seconds`` [s] (its own evaluation count)."""
         runs = [r.slice_time(float(r.t[0]), float(r.t[0]) + seconds) for r in self.runs]
-        return Objective(runs, self.params, self.weights, self.settings, self.executor, self.threads)
+        return Objective(runs, self.params, self.weights, self.settings, self.executor, self.threads, self.model)
 
     @property
     def names(self) -> tuple[str, ...]:

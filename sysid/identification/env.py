@@ -2,7 +2,7 @@
 
 The state is the parameter vector being tuned, the action a bounded modification of it and the
 reward the negative identification objective (external + internal errors, paper Eqs. 7 and 8)
-of :class:`sysid.objective.Objective`. :func:`sysid.ppo.fit_ppo` trains PPO on it.
+of :class:`sysid.identification.objective.Objective`. :func:`sysid.identification.ppo.fit_ppo` trains PPO on it.
 """
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from gymnasium import spaces
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
-from sysid.objective import OBSERVED_TERMS, ObjectiveTerms
+from sysid.identification.objective import OBSERVED_TERMS, ObjectiveTerms
 
 #: Observed terms are ``log10(term / reference term)`` clipped to +-this many decades, then
 #: divided by it (so each lies in [-1, 1]).
@@ -24,7 +24,7 @@ TERM_FLOOR = 1e-9
 
 
 class TermsObjective(Protocol):
-    """What the environment needs of an objective (:class:`sysid.objective.Objective` has it)."""
+    """What the environment needs of an objective (:class:`sysid.identification.objective.Objective` has it)."""
 
     params: ModelParameters
 
@@ -108,7 +108,7 @@ class ParameterTuningEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ## Arguments
 
-    - ``objective``: an :class:`sysid.objective.Objective` (or anything with ``params`` and
+    - ``objective``: an :class:`sysid.identification.objective.Objective` (or anything with ``params`` and
       ``terms``); its free parameters are tuned.
     - ``episode_length``: steps per episode (default 8).
     - ``max_step``: largest change of a unit coordinate per step (default 0.1).

@@ -29,8 +29,8 @@ import numpy as np
 from cobra_model.errors import InputError
 from cobra_model.gait import dominant_frequency_hz
 from cobra_model.model import CobraModel
-from cobra_model.runs import interpolate_rows
-from sysid.optitrack import MotiveTake, resolve_mapping
+from cobra_model.resample import interpolate_rows
+from cobra_model.motive import MotiveTake, resolve_mapping
 
 #: Coarse search step [s].
 COARSE_STEP_S = 0.005
@@ -103,8 +103,8 @@ def estimate_clock_offset(take: MotiveTake, joints: tuple[np.ndarray, np.ndarray
     """Estimate the take's clock offset from the joint log (see the module docstring).
 
     Args:
-        take: the Motive take; joints: ``(t, q, q_ref)`` of :func:`sysid.optitrack.read_joint_log`.
-        mapping: Motive rigid body -> run body (:func:`sysid.optitrack.resolve_mapping`).
+        take: the Motive take; joints: ``(t, q, q_ref)`` of :func:`cobra_model.motive.read_joint_log`.
+        mapping: Motive rigid body -> run body (:func:`cobra_model.motive.resolve_mapping`).
         joint_log: the joint log's name for messages.
 
     Raises:

@@ -28,7 +28,7 @@ from typing import Sequence
 import numpy as np
 
 from cobra_model.kinematics import yaw_of_quat_wxyz
-from cobra_model.runs import Run
+from cobra_model.run import Run
 
 HEAD_SCALE_M = 0.01
 JOINT_SCALE_RAD = 0.01

@@ -1,7 +1,7 @@
 """Figures of the sim-to-real gap, written as PNG files (matplotlib, Agg backend).
 
-Each function draws one figure from :class:`cobra_model.runs.Run` objects or
-:class:`sysid.metrics.GapReport` objects, writes it to ``out`` (parent directories are created,
+Each function draws one figure from :class:`cobra_model.run.Run` objects or
+:class:`sysid.gap.metrics.GapReport` objects, writes it to ``out`` (parent directories are created,
 an existing file is replaced: callers decide whether that is allowed) and returns the path. The
 figures follow the paper's:
 
@@ -31,8 +31,8 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
 from cobra_model.errors import InputError
-from cobra_model.runs import NUM_JOINTS, Run
-from sysid.metrics import GapReport
+from cobra_model.run import NUM_JOINTS, Run
+from sysid.gap.metrics import GapReport
 
 #: Joints shown by :func:`plot_joint_responses` by default: the paper's representative pitch
 #: (5) and yaw (6) joints.
@@ -192,7 +192,7 @@ def plot_joint_responses(runs: Sequence[tuple[str, Run]], out: str | Path, *,
 
 def _correlation_curve(ax: Axes, t: np.ndarray, summary: Mapping[str, Any], colour: str,
                        label: str) -> None:
-    """Mean correlation curve of a :func:`sysid.metrics.correlation_summary` with its band."""
+    """Mean correlation curve of a :func:`sysid.gap.metrics.correlation_summary` with its band."""
     ax.fill_between(t, summary["min_curve"], summary["max_curve"], color=colour, alpha=0.2, lw=0)
     ax.plot(t, summary["mean_curve"], color=colour, lw=1.5,
             label=f"{label} (mean {summary['mean']:.3f})")

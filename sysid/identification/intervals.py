@@ -55,7 +55,7 @@ residuals that are not white, as in the AR(1) regression of ``tests/test_interva
 (there the naive interval covers 74 %, the HAC interval 93 %).
 
 Units: ``J`` and ``r`` in the objective's residual units per unit coordinate (see
-:mod:`sysid.lsq`); covariances come back in squared unit coordinates.
+:mod:`sysid.identification.lsq`); covariances come back in squared unit coordinates.
 """
 from __future__ import annotations
 
@@ -104,7 +104,7 @@ def scores(J: np.ndarray, r: np.ndarray, blocks: Sequence[np.ndarray]) -> list[n
         J: ``(m, d)`` residual Jacobian.
         r: ``(m,)`` residuals.
         blocks: per run, ``(S, C)`` indices of its residuals: row = sample time, column =
-            channel (:func:`sysid.objective.residual_blocks`).
+            channel (:func:`sysid.identification.objective.residual_blocks`).
     """
     return [np.einsum("tcd,tc->td", J[b], r[b]) for b in map(np.asarray, blocks)]
 

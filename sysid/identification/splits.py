@@ -5,8 +5,9 @@ from pathlib import Path
 from typing import Sequence
 
 from cobra_model.errors import InputError
-from cobra_model.runs import Run, read_run, run_csv_path
-from sysid.dataset import load_manifest
+from cobra_model.run import Run
+from cobra_model.run_files import read_run, run_csv_path
+from sysid.generators.dataset import load_manifest
 
 
 def expand(paths: Sequence[str]) -> tuple[list[Path], list[Path]]:

@@ -1,6 +1,6 @@
 """Sim-to-real gap metrics between two runs (paper Eq. 7 and 8 and the sliding-window correlation).
 
-All functions are pure and take :class:`cobra_model.runs.Run` objects, typically a measured run
+All functions are pure and take :class:`cobra_model.run.Run` objects, typically a measured run
 (hardware, OptiTrack) and a simulated run of the same command. Two runs are first put on a common
 time base (:func:`resample_to`); then
 
@@ -25,7 +25,8 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from cobra_model.errors import InputError
-from cobra_model.runs import NUM_JOINTS, Run, resample_run
+from cobra_model.resample import resample_run
+from cobra_model.run import NUM_JOINTS, Run
 
 #: Default sliding-correlation window [s]: about one gait cycle at the paper's middle gait
 #: frequency of 0.5 Hz, long enough that a window of a sine-tracking joint has a well-defined
@@ -514,7 +515,7 @@ class GapReport:
             "head_mean_error_m": _json_float(self.head.mean),
             "joint_rmse_rad": {
                 "per_joint": [_json_float(v) for v in self.joint_rmse],
-                "mean": _json_float(_nan_mean(self.joint_rmse)),
+                "mean": _json_float(self.mean_joint_rmse),
             },
             "cpg_error": cpg,
             "window_correlation": window,
@@ -523,6 +524,11 @@ class GapReport:
             },
             "resampled": self.resampled,
         }
+
+    @property
+    def mean_joint_rmse(self) -> float:
+        """Mean over the joints of the per-joint RMS error [rad] (NaN joints left out)."""
+        return _nan_mean(self.joint_rmse)
 
     @property
     def head_omitted(self) -> str | None:

@@ -8,9 +8,9 @@ fit (Isaac Sim's actuator identification refuses to start on data that cannot fi
   moves, and runs too short for the fit's first horizon stage.
 - **Identifiability of the free parameters** (:func:`check_runs`): one forward finite-difference
   Jacobian of the residuals in the parameters' unit coordinates, made exactly as
-  :func:`sysid.lsq.fit_lsq` makes its Jacobians (:func:`sysid.lsq.forward_steps`,
-  :data:`sysid.lsq.FD_STEP`, every perturbed vector in one batched
-  :meth:`sysid.objective.Objective.residuals` call), on each run's first ``horizon_s``
+  :func:`sysid.identification.lsq.fit_lsq` makes its Jacobians (:func:`sysid.identification.lsq.forward_steps`,
+  :data:`sysid.identification.lsq.FD_STEP`, every perturbed vector in one batched
+  :meth:`sysid.identification.objective.Objective.residuals` call), on each run's first ``horizon_s``
   seconds. Its singular values give the numerical rank and condition number; its columns say how
   strongly each parameter moves the residuals (its excitation); its flat directions say which
   parameters move them in nearly the same way. :func:`analyse_jacobian` names the parameters
@@ -19,7 +19,7 @@ fit (Isaac Sim's actuator identification refuses to start on data that cannot fi
 :func:`apply` freezes them in a parameter set. The ``cobra check`` command prints the report;
 ``cobra fit`` and ``cobra diagnose`` run it before fitting (``--no-check`` skips it).
 
-Residual units are those of :class:`sysid.objective.Weights`: by default 1 residual unit is
+Residual units are those of :class:`sysid.identification.objective.Weights`: by default 1 residual unit is
 1 cm of head path or 0.01 rad of joint angle at one 10 Hz sample.
 """
 from __future__ import annotations
@@ -33,16 +33,16 @@ import numpy as np
 from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
-from cobra_model.runs import Run
+from cobra_model.run import Run
 from integrators.simulator import SimSettings
-from sysid.lsq import DEFAULT_HORIZONS_S, FD_STEP, forward_steps
-from sysid.objective import Objective, Weights
+from sysid.identification.lsq import DEFAULT_HORIZONS_S, FD_STEP, forward_steps
+from sysid.identification.objective import Objective, Weights
 
 #: A sample interval longer than this multiple of the run's median interval is a gap. A logger
 #: at a steady rate jitters by a few percent; 1.5x is a skipped sample at the least.
 GAP_FACTOR = 1.5
 #: A run shorter than this [s] is too short: it is the first horizon stage of
-#: :func:`sysid.lsq.fit_lsq`, below which a head path barely depends on the ground parameters.
+#: :func:`sysid.identification.lsq.fit_lsq`, below which a head path barely depends on the ground parameters.
 MIN_DURATION_S = DEFAULT_HORIZONS_S[0]
 #: A head dropout longer than this [s] is a problem: a quarter of the fastest gait's period
 #: (0.65 Hz), over which the head path bends noticeably. Shorter ones, in all under
@@ -63,11 +63,11 @@ FLAT_RATIO = 0.5
 #: still is allowed to stay still; 0.1 rad is 65 encoder counts, far above quantisation).
 MIN_COMMAND_SWING_RAD = 0.1
 #: A singular value of the unit-coordinate Jacobian below this fraction of the largest is a flat
-#: direction: the threshold :func:`sysid.lsq.fit_lsq` uses for its identifiability flags, so the
+#: direction: the threshold :func:`sysid.identification.lsq.fit_lsq` uses for its identifiability flags, so the
 #: check and the fit's report agree on what is flat.
 FLAT_RELATIVE = 1e-4
 #: A component above this magnitude (of a unit right singular vector) loads a flat direction, as
-#: in :func:`sysid.lsq.fit_lsq`'s report.
+#: in :func:`sysid.identification.lsq.fit_lsq`'s report.
 FLAT_LOADING = 0.3
 #: A parameter whose residual sensitivity (its Jacobian column norm) is below this fraction of
 #: the largest one's is not excited. Equal to :data:`FLAT_RELATIVE`: such a column alone makes a
@@ -393,8 +393,8 @@ class Identifiability:
 def unit_jacobian(objective: Objective, *, fd_step: float = FD_STEP) -> np.ndarray:
     """Forward finite-difference Jacobian (m, d) of the objective's residuals in unit coordinates.
 
-    Made exactly as :func:`sysid.lsq.fit_lsq` makes one: steps from
-    :func:`sysid.lsq.forward_steps` (inward at an upper bound, away from ``mu_s = mu_c``), the
+    Made exactly as :func:`sysid.identification.lsq.fit_lsq` makes one: steps from
+    :func:`sysid.identification.lsq.forward_steps` (inward at an upper bound, away from ``mu_s = mu_c``), the
     base and every perturbed parameter vector simulated in one batched
     :meth:`Objective.residuals` call, at the objective's parameter set.
     """
@@ -568,7 +568,7 @@ def check_runs(runs: Sequence[Run], params: ModelParameters, *, horizon_s: float
     unit-coordinate Jacobian (:func:`unit_jacobian`) of the objective
     ``Objective(runs, params, weights, settings, threads=threads)`` truncated to each run's
     first ``horizon_s`` seconds, and its analysis (:func:`analyse_jacobian`). 3 s is the
-    continuation's second stage in :func:`sysid.lsq.fit_lsq`: long enough for the ground to
+    continuation's second stage in :func:`sysid.identification.lsq.fit_lsq`: long enough for the ground to
     shape the head path, short enough that the Jacobian costs about a second per 10 run-seconds
     and parameter, and that the residuals are still nearly linear in the parameters.
 

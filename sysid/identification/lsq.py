@@ -1,7 +1,7 @@
 """Box-constrained nonlinear least squares through CasADi: the identification baseline.
 
 Minimises ``0.5 ||r(x)||^2`` over the free parameters, ``r`` the stacked weighted residuals of
-:mod:`sysid.objective` (head positions over time and joint angles over time), by a
+:mod:`sysid.identification.objective` (head positions over time and joint angles over time), by a
 Levenberg-Marquardt iteration whose every step is a box- (and ``mu_s >= mu_c``-) constrained
 quadratic programme solved by CasADi's ``conic`` interface with qpOASES (CasADi's own qrqp
 corrupted the heap here on one-variable problems, found by the discrepancy workflow's
@@ -24,18 +24,18 @@ long-horizon sensitivities stiff. Finite differences in unit coordinates with st
 over that stiffness.
 
 Confidence intervals come from the HAC sandwich covariance
-``(J^T J)^-1 Omega (J^T J)^-1`` of :mod:`sysid.intervals` (``Omega`` the prewhitened
+``(J^T J)^-1 Omega (J^T J)^-1`` of :mod:`sysid.identification.intervals` (``Omega`` the prewhitened
 Newey-West long-run covariance of each run's scores ``J_t^T r_t``: the residuals are time
 series, and neighbouring samples' errors are correlated when anything lasts longer than one
 sample) plus the start-pose term ``A P A^T``, ``A = (J^T J)^-1 J^T J_p`` and ``P`` the
 covariance of every run's measured start pose (x, y, heading; see
-:func:`sysid.objective.start_pose_sensitivity`), mapped to physical units. With white
+:func:`sysid.identification.objective.start_pose_sensitivity`), mapped to physical units. With white
 residuals the sandwich is the Gauss-Newton ``sigma^2 (J^T J)^-1``, ``sigma^2 = ||r||^2 / (m - d)``;
 that interval is reported too (``ci_low_iid``, ``ci_high_iid``).
 The start pose is a measurement too: each run is simulated from it, so its error moves the
 whole head path and biases the fit by more than the noise alone says (on
 ``benchmarks/recovery.py`` up to 0.7 %, three times the noise-only interval). The fit also
-tests the residuals for whiteness (:func:`sysid.intervals.whiteness`, ``residual_whiteness``):
+tests the residuals for whiteness (:func:`sysid.identification.intervals.whiteness`, ``residual_whiteness``):
 residuals that are not white mean a model mismatch the intervals do not cover. A parameter is
 flagged as not identifiable when it sits on a bound, when it loads a flat direction of ``J``
 (singular value below 1e-4 of the largest), or when its 95 % interval is wider than its value.
@@ -56,8 +56,8 @@ import numpy as np
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
-from sysid.intervals import Whiteness, sandwich_covariance, whiteness
-from sysid.objective import Objective
+from sysid.identification.intervals import Whiteness, sandwich_covariance, whiteness
+from sysid.identification.objective import Objective
 
 
 #: Horizons [s] of the continuation before the whole runs (see :func:`fit_lsq`).
@@ -474,10 +474,10 @@ def uncertainty(initial: ModelParameters, fitted: ModelParameters, J: np.ndarray
         J: ``(m, d)`` residual Jacobian in unit coordinates; r: ``(m,)`` residuals; z: ``(d,)``
             fitted unit coordinates.
         start_pose: the start poses' (residual derivatives, standard uncertainties), whose
-            covariance is added (:func:`sysid.objective.start_pose_sensitivity`).
+            covariance is added (:func:`sysid.identification.objective.start_pose_sensitivity`).
         blocks: per run, ``(S, C)`` residual indices by sample time and channel
-            (:func:`sysid.objective.residual_blocks`): with them the noise covariance is the
-            HAC sandwich of :func:`sysid.intervals.sandwich_covariance`; without them the
+            (:func:`sysid.identification.objective.residual_blocks`): with them the noise covariance is the
+            HAC sandwich of :func:`sysid.identification.intervals.sandwich_covariance`; without them the
             Gauss-Newton ``sigma^2 (J^T J)^-1`` (white residuals assumed).
         sample_hz: residual sample rate [Hz], to state the HAC bandwidth in seconds.
     """

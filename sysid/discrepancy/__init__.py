@@ -1,0 +1,1 @@
+"""The discrepancy workflow: the effect library, residual signatures and the diagnosis."""

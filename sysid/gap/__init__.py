@@ -1,0 +1,1 @@
+"""Gap metrics between simulated and measured runs, with their plots and reports."""

@@ -1,0 +1,1 @@
+"""Data generators: the shipped reference dataset and runs recorded in MuJoCo."""

@@ -1,0 +1,1 @@
+"""Identification: the objective, least squares, PPO (env, executor), intervals, the data check."""
