@@ -109,6 +109,8 @@ class BatchSimulator:
         status = np.zeros(n, dtype=np.int64)
         X = np.empty((n, len(self.model.features), 3))
         F = np.empty_like(X)
+        KR = np.empty((n, len(self.model.chain.parents), 3, 3))  # kernel workspace
+        KV = np.empty((n, len(self.model.chain.parents), 6, 3))
         on = np.ones(self.model.n_joints, dtype=np.bool_)
         sub = s.substeps
         every = record_every if record_every > 0 else max(n_steps, 1)
@@ -128,7 +130,7 @@ class BatchSimulator:
             g = goals[min(i // sub, len(goals) - 1)]
             K.batch_pre_step(i % sub == 0, Q, V, g, gidx, integ, prev, duty, on, act, f.scal, ground,
                              self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
-                             TAU, cur, X, F, status)
+                             TAU, cur, X, F, KR, KV, status)
             for a, b, pool in self._groups:
                 pin.abaInParallel(self.threads, pool, Q[a:b].T, V[a:b].T, TAU[a:b].T, A[:, a:b])
             K.batch_post_step(Q, V, A.T, f.scal, self.model.chain.floating, Qn, Vn, status)

@@ -43,10 +43,10 @@ STATUS_VELOCITY = 3
 
 
 @njit(cache=True, fastmath=False)
-def _quat_xyzw_to_rot(qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
+def _quat_xyzw_to_rot_into(R, qx: float, qy: float, qz: float, qw: float) -> None:
+    """The rotation matrix of the quaternion ``(x, y, z, w)`` (normalised first) into ``R`` (3, 3)."""
     n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
     x, y, z, w = qx / n, qy / n, qz / n, qw / n
-    R = np.empty((3, 3))
     R[0, 0] = 1 - 2 * (y * y + z * z)
     R[0, 1] = 2 * (x * y - z * w)
     R[0, 2] = 2 * (x * z + y * w)
@@ -56,27 +56,11 @@ def _quat_xyzw_to_rot(qx: float, qy: float, qz: float, qw: float) -> np.ndarray:
     R[2, 0] = 2 * (x * z - y * w)
     R[2, 1] = 2 * (y * z + x * w)
     R[2, 2] = 1 - 2 * (x * x + y * y)
-    return R
-
-
-@njit(cache=True)
-def _rot_axis_into(out, a0, a1, a2, th):
-    c, s = np.cos(th), np.sin(th)
-    C = 1.0 - c
-    out[0, 0] = c + a0 * a0 * C
-    out[0, 1] = a0 * a1 * C - a2 * s
-    out[0, 2] = a0 * a2 * C + a1 * s
-    out[1, 0] = a1 * a0 * C + a2 * s
-    out[1, 1] = c + a1 * a1 * C
-    out[1, 2] = a1 * a2 * C - a0 * s
-    out[2, 0] = a2 * a0 * C - a1 * s
-    out[2, 1] = a2 * a1 * C + a0 * s
-    out[2, 2] = c + a2 * a2 * C
 
 
 @njit(cache=True)
 def chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w, vo, aw):
-    """World pose and velocity of every body of the tree (allocation-free inner loop).
+    """World pose and velocity of every body of the tree (allocation-free).
 
     Args:
         q, v: configuration (nq,) and velocity (nv,) in Pinocchio's convention.
@@ -89,11 +73,9 @@ def chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w,
             velocity [rad/s], origin velocity [m/s] and the joint axis in the world frame.
     """
     nb = parents.shape[0]
-    Rj = np.empty((3, 3))
-    Ra = np.empty((3, 3))
     for i in range(nb):
         if floating and i == 0:
-            R[0] = _quat_xyzw_to_rot(q[3], q[4], q[5], q[6])
+            _quat_xyzw_to_rot_into(R[0], q[3], q[4], q[5], q[6])
             for r in range(3):
                 p[0, r] = q[r]
                 w[0, r] = R[0, r, 0] * v[3] + R[0, r, 1] * v[4] + R[0, r, 2] * v[5]
@@ -106,15 +88,11 @@ def chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w,
                 p[i, r] = jp[i, r]
                 w[i, r] = 0.0
                 vo[i, r] = 0.0
-                for c in range(3):
-                    Rj[r, c] = jR[i, r, c]
         else:
             for r in range(3):
                 acc = p[par, r]
                 for c in range(3):
                     acc += R[par, r, c] * jp[i, c]
-                    Rj[r, c] = (R[par, r, 0] * jR[i, 0, c] + R[par, r, 1] * jR[i, 1, c]
-                                + R[par, r, 2] * jR[i, 2, c])
                 p[i, r] = acc
             dx = p[i, 0] - p[par, 0]
             dy = p[i, 1] - p[par, 1]
@@ -124,31 +102,55 @@ def chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w,
             vo[i, 1] = vo[par, 1] + wz * dx - wx * dz
             vo[i, 2] = vo[par, 2] + wx * dy - wy * dx
             w[i, 0], w[i, 1], w[i, 2] = wx, wy, wz
-        _rot_axis_into(Ra, axes[i, 0], axes[i, 1], axes[i, 2], q[qidx[i]])
+        # the joint's rotation about its axis (Rodrigues), as scalars
+        a0, a1, a2 = axes[i, 0], axes[i, 1], axes[i, 2]
+        cth, sth = np.cos(q[qidx[i]]), np.sin(q[qidx[i]])
+        C = 1.0 - cth
+        ra00, ra01, ra02 = cth + a0 * a0 * C, a0 * a1 * C - a2 * sth, a0 * a2 * C + a1 * sth
+        ra10, ra11, ra12 = a1 * a0 * C + a2 * sth, cth + a1 * a1 * C, a1 * a2 * C - a0 * sth
+        ra20, ra21, ra22 = a2 * a0 * C - a1 * sth, a2 * a1 * C + a0 * sth, cth + a2 * a2 * C
         qd = v[vidx[i]]
         for r in range(3):
-            for c in range(3):
-                R[i, r, c] = Rj[r, 0] * Ra[0, c] + Rj[r, 1] * Ra[1, c] + Rj[r, 2] * Ra[2, c]
-            aw[i, r] = Rj[r, 0] * axes[i, 0] + Rj[r, 1] * axes[i, 1] + Rj[r, 2] * axes[i, 2]
+            # row r of the joint frame's world rotation R_parent jR (jR alone under the universe)
+            if par < 0:
+                j0, j1, j2 = jR[i, r, 0], jR[i, r, 1], jR[i, r, 2]
+            else:
+                j0 = R[par, r, 0] * jR[i, 0, 0] + R[par, r, 1] * jR[i, 1, 0] + R[par, r, 2] * jR[i, 2, 0]
+                j1 = R[par, r, 0] * jR[i, 0, 1] + R[par, r, 1] * jR[i, 1, 1] + R[par, r, 2] * jR[i, 2, 1]
+                j2 = R[par, r, 0] * jR[i, 0, 2] + R[par, r, 1] * jR[i, 1, 2] + R[par, r, 2] * jR[i, 2, 2]
+            R[i, r, 0] = j0 * ra00 + j1 * ra10 + j2 * ra20
+            R[i, r, 1] = j0 * ra01 + j1 * ra11 + j2 * ra21
+            R[i, r, 2] = j0 * ra02 + j1 * ra12 + j2 * ra22
+            aw[i, r] = j0 * a0 + j1 * a1 + j2 * a2
             w[i, r] += aw[i, r] * qd
 
 
 @njit(cache=True)
-def add_point_force(tau, body, x0, x1, x2, f0, f1, f2, floating, parents, vidx, R, p, aw):
-    """Accumulate ``J(x)^T F`` into ``tau`` for a world force ``F`` [N] at world point ``x`` on ``body``."""
-    j = body
-    while j >= 0:
-        rx, ry, rz = x0 - p[j, 0], x1 - p[j, 1], x2 - p[j, 2]
-        mx = ry * f2 - rz * f1
-        my = rz * f0 - rx * f2
-        mz = rx * f1 - ry * f0
-        if floating and j == 0:
+def add_body_wrenches(tau, floating, parents, vidx, R, p, aw, fsum, msum):
+    """Accumulate ``J^T`` of every body's world wrench into ``tau`` in one sweep from the leaves.
+
+    ``fsum[i]`` [N] and ``msum[i]`` [N m] (moment about the world origin) hold the wrench applied
+    to body ``i`` and are overwritten by its subtree's. A revolute joint takes the subtree's
+    moment about its origin along its world axis; a floating root takes the force and the moment
+    about its origin in its own frame (Pinocchio's convention). Bodies are in Pinocchio's order
+    (a parent before its children).
+    """
+    for i in range(parents.shape[0] - 1, -1, -1):
+        f0, f1, f2 = fsum[i, 0], fsum[i, 1], fsum[i, 2]
+        mx = msum[i, 0] - (p[i, 1] * f2 - p[i, 2] * f1)
+        my = msum[i, 1] - (p[i, 2] * f0 - p[i, 0] * f2)
+        mz = msum[i, 2] - (p[i, 0] * f1 - p[i, 1] * f0)
+        if floating and i == 0:
             for c in range(3):
                 tau[c] += R[0, 0, c] * f0 + R[0, 1, c] * f1 + R[0, 2, c] * f2
                 tau[3 + c] += R[0, 0, c] * mx + R[0, 1, c] * my + R[0, 2, c] * mz
         else:
-            tau[vidx[j]] += aw[j, 0] * mx + aw[j, 1] * my + aw[j, 2] * mz
-        j = parents[j]
+            tau[vidx[i]] += aw[i, 0] * mx + aw[i, 1] * my + aw[i, 2] * mz
+        par = parents[i]
+        if par >= 0:
+            for c in range(3):
+                fsum[par, c] += fsum[i, c]
+                msum[par, c] += msum[i, c]
 
 
 @njit(cache=True)
@@ -177,7 +179,7 @@ def cone_weights(v1: float, v2: float, eps: float, cone: float):
 
 @njit(cache=True)
 def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
-                  f_body, f_kind, f_c, f_a, f_r, ground, tau, X, F, max_depth):
+                  f_body, f_kind, f_c, f_a, f_r, ground, tau, X, F, max_depth, kin_R, kin_v):
     """Stribeck ground (paper Eqs. 3-6) on every contact feature, accumulated as ``J^T F``.
 
     Contact points: a point feature touches at ``centre - radius z``; a circle feature (a
@@ -201,14 +203,15 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
 
     Returns:
         status: STATUS_OK, or STATUS_PENETRATION if a point is deeper than ``max_depth`` [m].
-    Outputs ``X`` (nf, 3) contact points [m] and ``F`` (nf, 3) world forces [N].
+    Outputs ``X`` (nf, 3) contact points [m] and ``F`` (nf, 3) world forces [N]; ``kin_R``
+    (nb, 3, 3) and ``kin_v`` (nb, 6, 3) are the workspace: the bodies' rotations and their
+    origins, angular and origin velocities and joint axes (:func:`chain_kinematics`), then the
+    wrenches of :func:`add_body_wrenches`.
     """
-    nb = parents.shape[0]
-    R = np.empty((nb, 3, 3))
-    p = np.empty((nb, 3))
-    w = np.empty((nb, 3))
-    vo = np.empty((nb, 3))
-    aw = np.empty((nb, 3))
+    R, p, w, vo, aw = kin_R, kin_v[:, 0], kin_v[:, 1], kin_v[:, 2], kin_v[:, 3]
+    fsum, msum = kin_v[:, 4], kin_v[:, 5]
+    fsum[:] = 0.0
+    msum[:] = 0.0
     chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w, vo, aw)
     k1, k2 = ground[G_K1], ground[G_K2]
     mu_c, mu_s, mu_v, v_s = ground[G_MU_C], ground[G_MU_S], ground[G_MU_V], ground[G_V_S]
@@ -266,30 +269,35 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
         fx = f1 * t1x - f2 * t1y
         fy = f1 * t1y + f2 * t1x
         F[k, 0], F[k, 1], F[k, 2] = fx, fy, fz
-        add_point_force(tau, b, x0, x1, x2, fx, fy, fz, floating, parents, vidx, R, p, aw)
+        fsum[b, 0] += fx
+        fsum[b, 1] += fy
+        fsum[b, 2] += fz
+        msum[b, 0] += x1 * fz - x2 * fy
+        msum[b, 1] += x2 * fx - x0 * fz
+        msum[b, 2] += x0 * fy - x1 * fx
+    add_body_wrenches(tau, floating, parents, vidx, R, p, aw, fsum, msum)
     return status
 
 
 @njit(cache=True)
-def servo_duty(q_goal, q_meas, integ, prev_err, kp, ki, kd, pwm_limit, duty_out):
-    """Dynamixel X position loop: PWM duty in [-1, 1] from the goal and measured angle.
+def servo_duty(j, err_rad, integ, prev_err, kp, ki, kd, pwm_limit, duty_out):
+    """Dynamixel X position loop of joint ``j``: PWM duty in [-1, 1] from its position error
+    ``err_rad`` (goal - measured) [rad].
 
     Errors are in encoder pulses (``PULSES_PER_REV`` per turn); ``kp = P/128``, ``ki = I/65536``,
     ``kd = D/16`` (e-manual gain conversions, :mod:`cobra_model.servo`); the output in PWM units
     is clipped at ``pwm_limit`` and scaled by ``PWM_FULL_SCALE`` (= 100 % duty). ``integ`` and
     ``prev_err`` (pulses) are updated in place once per control tick.
     """
-    scale = PULSES_PER_REV / (2.0 * np.pi)
-    for j in range(q_goal.shape[0]):
-        e = (q_goal[j] - q_meas[j]) * scale
-        integ[j] += e
-        u = kp * e + ki * integ[j] + kd * (e - prev_err[j])
-        prev_err[j] = e
-        if u > pwm_limit:
-            u = pwm_limit
-        elif u < -pwm_limit:
-            u = -pwm_limit
-        duty_out[j] = u / PWM_FULL_SCALE
+    e = err_rad * (PULSES_PER_REV / (2.0 * np.pi))
+    integ[j] += e
+    u = kp * e + ki * integ[j] + kd * (e - prev_err[j])
+    prev_err[j] = e
+    if u > pwm_limit:
+        u = pwm_limit
+    elif u < -pwm_limit:
+        u = -pwm_limit
+    duty_out[j] = u / PWM_FULL_SCALE
 
 
 @njit(cache=True)
@@ -343,11 +351,9 @@ def measured_angles(q, nq, act, out):
 def control_tick(q, goal, act, scal, integ, prev_err, duty):
     """One tick of every servo's position loop (backlash as a dead zone on the error)."""
     nj = act.shape[0]
-    meas = np.empty(nj)
-    measured_angles(q, q.shape[0], act, meas)
-    g = np.empty(nj)
+    nq = q.shape[0]
     for j in range(nj):
-        err = goal[j] - meas[j]
+        err = goal[j] - (q[nq - nj + j] + act[j, A_ENC_OFFSET])  # the encoder's reading
         b = act[j, A_BACKLASH]
         if b > 0.0:
             if err > b:
@@ -356,18 +362,18 @@ def control_tick(q, goal, act, scal, integ, prev_err, duty):
                 err += b
             else:
                 err = 0.0
-        g[j] = meas[j] + err
-    servo_duty(g, meas, integ, prev_err, scal[S_KP], scal[S_KI], scal[S_KD], scal[S_PWM_LIMIT], duty)
+        servo_duty(j, err, integ, prev_err, scal[S_KP], scal[S_KI], scal[S_KD], scal[S_PWM_LIMIT], duty)
 
 
 @njit(cache=True)
 def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_R, chain_f,
-                       feat_i, feat_f, tau, current, X, F):
+                       feat_i, feat_f, tau, current, X, F, kin_R, kin_v):
     """Actuator torques and ground forces as one generalized force ``tau`` (nv,); returns a status.
 
     ``chain_i`` (nb, 3) = parent, q index, v index; ``chain_R`` (nb, 3, 3) = placement rotation;
     ``chain_f`` (nb, 6) = placement translation (3), axis (3); ``feat_i`` (nf, 2) = body, kind;
-    ``feat_f`` (nf, 7) = centre (3), axis (3), radius.
+    ``feat_f`` (nf, 7) = centre (3), axis (3), radius; ``kin_R``, ``kin_v``: the workspace of
+    :func:`ground_forces`.
     """
     nj = act.shape[0]
     nbase = v.shape[0] - nj
@@ -377,7 +383,7 @@ def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain
     actuator_torques(duty, v[nbase:], torque_on, act, scal[S_VOLTAGE], scal[S_RESISTANCE], tau_j, current)
     return ground_forces(q, v, floating, chain_i[:, 0], chain_R, chain_f[:, 0:3], chain_f[:, 3:6],
                          chain_i[:, 1], chain_i[:, 2], feat_i[:, 0], feat_i[:, 1], feat_f[:, 0:3],
-                         feat_f[:, 3:6], feat_f[:, 6], ground, tau, X, F, scal[S_MAX_DEPTH])
+                         feat_f[:, 3:6], feat_f[:, 6], ground, tau, X, F, scal[S_MAX_DEPTH], kin_R, kin_v)
 
 
 @njit(cache=True)
@@ -398,29 +404,24 @@ def integrate(q, v, a, dt, floating, q_out, v_out):
         th2 = wx * wx + wy * wy + wz * wz
         th = np.sqrt(th2)
         if th < 1e-6:
-            A = 1.0 - th2 / 6.0
             B = 0.5 - th2 / 24.0
             C = 1.0 / 6.0 - th2 / 120.0
         else:
-            A = np.sin(th) / th
             B = (1.0 - np.cos(th)) / th2
             C = (th - np.sin(th)) / (th2 * th)
-        # exp(w^) = I + A w^ + B w^2 ; V = I + B w^ + C w^2
-        dR = np.empty((3, 3))
-        W = np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
-        W2 = W @ W
-        V = np.empty((3, 3))
-        for r in range(3):
-            for c in range(3):
-                eye = 1.0 if r == c else 0.0
-                dR[r, c] = eye + A * W[r, c] + B * W2[r, c]
-                V[r, c] = eye + B * W[r, c] + C * W2[r, c]
-        dp0 = V[0, 0] * vx + V[0, 1] * vy + V[0, 2] * vz
-        dp1 = V[1, 0] * vx + V[1, 1] * vy + V[1, 2] * vz
-        dp2 = V[2, 0] * vx + V[2, 1] * vy + V[2, 2] * vz
-        R = _quat_xyzw_to_rot(q[3], q[4], q[5], q[6])
-        for r in range(3):
-            q_out[r] = q[r] + R[r, 0] * dp0 + R[r, 1] * dp1 + R[r, 2] * dp2
+        # translation: V (dt v_lin) with V = I + B w^ + C w^2 (w^2 = w w^T - th2 I), in the root
+        # frame, then rotated into the world by the root's rotation
+        wv = wx * vx + wy * vy + wz * vz
+        cx, cy, cz = wy * vz - wz * vy, wz * vx - wx * vz, wx * vy - wy * vx
+        dp0 = vx + B * cx + C * (wx * wv - th2 * vx)
+        dp1 = vy + B * cy + C * (wy * wv - th2 * vy)
+        dp2 = vz + B * cz + C * (wz * wv - th2 * vz)
+        x, y, z, w = q[3], q[4], q[5], q[6]
+        n = np.sqrt(x * x + y * y + z * z + w * w)
+        x, y, z, w = x / n, y / n, z / n, w / n
+        q_out[0] = q[0] + (1 - 2 * (y * y + z * z)) * dp0 + 2 * (x * y - z * w) * dp1 + 2 * (x * z + y * w) * dp2
+        q_out[1] = q[1] + 2 * (x * y + z * w) * dp0 + (1 - 2 * (x * x + z * z)) * dp1 + 2 * (y * z - x * w) * dp2
+        q_out[2] = q[2] + 2 * (x * z - y * w) * dp0 + 2 * (y * z + x * w) * dp1 + (1 - 2 * (x * x + y * y)) * dp2
         # quaternion product q * dq (x, y, z, w), dq from the rotation vector
         h = 0.5 * th
         sh = np.sin(h) / th if th > 1e-12 else 0.5 - th2 / 48.0
@@ -439,12 +440,12 @@ def integrate(q, v, a, dt, floating, q_out, v_out):
 
 @njit(cache=True)
 def pre_step(control, q, v, goal, integ, prev_err, duty, torque_on, act, scal, ground, floating,
-             chain_i, chain_R, chain_f, feat_i, feat_f, tau, current, X, F):
+             chain_i, chain_R, chain_f, feat_i, feat_f, tau, current, X, F, kin_R, kin_v):
     """A servo tick (when ``control``) then :func:`generalized_forces`; returns the status."""
     if control:
         control_tick(q, goal, act, scal, integ, prev_err, duty)
     return generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_R,
-                              chain_f, feat_i, feat_f, tau, current, X, F)
+                              chain_f, feat_i, feat_f, tau, current, X, F, kin_R, kin_v)
 
 
 @njit(cache=True)
@@ -456,7 +457,7 @@ def post_step(q, v, a, scal, floating, q_out, v_out):
 
 @njit(cache=True, parallel=True)
 def batch_pre_step(control, Q, V, goals, goal_index, integ, prev_err, duty, on, act, scal, ground, floating,
-                   chain_i, chain_R, chain_f, feat_i, feat_f, TAU, current, X, F, status):
+                   chain_i, chain_R, chain_f, feat_i, feat_f, TAU, current, X, F, KR, KV, status):
     """:func:`pre_step` for every environment ``e`` of a batch (rows of the state arrays).
 
     The batch kernels live in this file because numba's on-disk cache of a function is
@@ -466,7 +467,7 @@ def batch_pre_step(control, Q, V, goals, goal_index, integ, prev_err, duty, on, 
     for e in prange(Q.shape[0]):
         status[e] = pre_step(control, Q[e], V[e], goals[goal_index[e]], integ[e], prev_err[e], duty[e], on, act[e],
                              scal, ground[e], floating, chain_i, chain_R, chain_f, feat_i, feat_f, TAU[e],
-                             current[e], X[e], F[e])
+                             current[e], X[e], F[e], KR[e], KV[e])
 
 
 @njit(cache=True, parallel=True)

@@ -206,6 +206,8 @@ class Simulator:
         self._feat_f = np.ascontiguousarray(np.column_stack([f.centre, f.axis, f.radius])).reshape(-1, 7)
         self._X = np.empty((len(f), 3))
         self._F = np.empty((len(f), 3))
+        self._kin_R = np.empty((len(ch.parents), 3, 3))  # kernel workspace (body poses, velocities)
+        self._kin_v = np.empty((len(ch.parents), 6, 3))
 
     def with_gains(self, gains: ServoGains) -> "Simulator":
         """A simulator identical but for the servo gains."""
@@ -289,7 +291,8 @@ class Simulator:
         status = K.pre_step(state.step % self.settings.substeps == 0, state.q, state.v,
                             np.asarray(q_goal, dtype=float), integ, prev_err, duty, on, self.act, self.scal,
                             self.ground, self.model.chain.floating, self._chain_i, self._chain_R, self._chain_f,
-                            self._feat_i, self._feat_f, tau, current, self._X, self._F)
+                            self._feat_i, self._feat_f, tau, current, self._X, self._F, self._kin_R,
+                            self._kin_v)
         if status:
             self._raise(status, state.t, state.q, state.v)
         a = pin.aba(self._pin, self._data, state.q, state.v, tau)
@@ -358,6 +361,7 @@ class Simulator:
         act, scal, ground, floating = self.act, self.scal, self.ground, self.model.chain.floating
         ci, cR, cf = self._chain_i, self._chain_R, self._chain_f
         fi, ff, X, F = self._feat_i, self._feat_f, self._X, self._F
+        kR, kv = self._kin_R, self._kin_v
         pinm, data = self._pin, self._data
         report_every = max(1, n_steps // 100)
         pre, post, aba = K.pre_step, K.post_step, pin.aba
@@ -370,7 +374,7 @@ class Simulator:
             if i == n_steps:
                 break
             status = pre(i % sub == 0, q, v, goal, integ, prev_err, duty, on, act, scal, ground,
-                         floating, ci, cR, cf, fi, ff, tau, current, X, F)
+                         floating, ci, cR, cf, fi, ff, tau, current, X, F, kR, kv)
             if status:
                 self._raise(status, state.t + i * s.dt, q, v)
             status = post(q, v, aba(pinm, data, q, v, tau), scal, floating, q_next, v_next)

@@ -26,7 +26,8 @@ def _forces(sim, q, v):
     off = np.zeros(sim.model.n_joints, dtype=np.bool_)
     status = K.generalized_forces(q, v, duty, off, sim.act, sim.scal, sim.ground, sim.model.chain.floating,
                                   sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i, sim._feat_f, tau,
-                                  np.empty(sim.model.n_joints), X, F)
+                                  np.empty(sim.model.n_joints), X, F, np.empty_like(sim._kin_R),
+                                  np.empty_like(sim._kin_v))
     return status, tau, X, F
 
 
