@@ -24,8 +24,7 @@ test: $(STAMP)
 	$(PY) -m pytest -q
 
 # Every benchmark, one after another (never two at once: they time themselves). Hours in all:
-# the MuJoCo fits and the diagnosis accuracy dominate. Each writes benchmarks/results/ or prints
-# its table (recovery and diagnose_accuracy print only, for now).
+# the MuJoCo fits and the diagnosis accuracy dominate. Each writes its table to benchmarks/results/.
 bench: $(STAMP)
 	$(PY) benchmarks/sim_speed.py
 	$(PY) benchmarks/fault_matrix.py

@@ -59,30 +59,30 @@ def main() -> None:
     rows = []
     t0 = time.perf_counter()
     lsq = fit_lsq(Objective(train, nominal), max_iterations=args.lsq_iterations)
-    rows.append(("least squares (CasADi)", time.perf_counter() - t0, lsq))
+    rows.append(("lsq", "least squares (CasADi)", time.perf_counter() - t0, lsq))
     from sysid.identification.ppo import fit_ppo
     t0 = time.perf_counter()
     ppo = fit_ppo(Objective(train, nominal), total_timesteps=args.ppo_timesteps, seed=0,
                   progress=ppo_progress("PPO", args.ppo_timesteps))
-    rows.append(("PPO (stable-baselines3)", time.perf_counter() - t0, ppo))
-    held = {name: evaluate_held_out(validation, nominal, res.params) for name, _, res in rows}
+    rows.append(("ppo", "PPO (stable-baselines3)", time.perf_counter() - t0, ppo))
+    held = {key: evaluate_held_out(validation, nominal, res.params) for key, _, _, res in rows}
     freqs = [h.freq_hz for h in next(iter(held.values()))]
     head = " | ".join(f"{f:g} Hz" for f in freqs)
     lines += [f"| method | wall [s] | evaluations | status | held-out final head error [m], nominal -> fitted: "
               f"{head} |", "|---|---:|---:|---|" + "---|" * len(freqs)]
     records = []
-    for name, wall, res in rows:
-        pairs = [(h.gap_before.head.final, h.gap_after.head.final) for h in held[name]]
+    for key, name, wall, res in rows:
+        pairs = [(h.gap_before.head.final, h.gap_after.head.final) for h in held[key]]
         cells = " | ".join(f"{b:.3f} -> {a:.3f}" for b, a in pairs)
         lines.append(f"| {name} | {wall:.0f} | {res.evaluations} | {res.status.value} | {cells} |")
-        records.append({"method": name, "wall_s": wall, "evaluations": res.evaluations, "status": res.status.value,
+        records.append({"key": key, "method": name, "wall_s": wall, "evaluations": res.evaluations, "status": res.status.value,
                         "held_out_final_head_m": {f"{f:g}": {"nominal": b, "fitted": a}
                                                   for f, (b, a) in zip(freqs, pairs)}})
     target = final_head_errors(validation, lsq.params).sum()
     reach = time_to_reach(validation, ppo.extra["best_history"], target)
     lines += ["", f"PPO reached the least-squares held-out error (summed final head error {target:.4f} m): "
               + (f"after {reach[0]:.0f} s ({reach[1]} timesteps)" if reach else
-                 f"not within {rows[1][1]:.0f} s ({ppo.extra['timesteps']} timesteps)")]
+                 f"not within {rows[1][2]:.0f} s ({ppo.extra['timesteps']} timesteps)")]
     meta = {"train_runs": len(train), "held_out_runs": len(validation), "free": list(nominal.free_names),
             "lsq_iterations_per_stage": args.lsq_iterations, "ppo_timesteps": args.ppo_timesteps, "ppo_seed": 0,
             "evaluations_per_s": {"one": one, "batched_10": batched}, "lsq_target_summed_final_head_m": target,

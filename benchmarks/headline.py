@@ -76,6 +76,19 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
     return out
 
 
+def _accuracy(doc: dict) -> list[tuple[str, str, str]]:
+    judged = [r for r in doc["rows"] if r["case"] != "reference"]
+    pairs = [r for r in judged if "+" in r["case"]]
+    ref = [r for r in doc["rows"] if r["case"] == "reference"]
+    seeds = ", ".join(map(str, doc["meta"]["seeds"]))
+    out = [(f"hidden effects named exactly (each alone, pairs, none) on this simulator's runs (seed {seeds})",
+            f"{sum(r['all_named'] for r in judged)} of {len(judged)}; pairs {sum(r['all_named'] for r in pairs)} "
+            f"of {len(pairs)}", "pairs >= 80 %")]
+    if ref:
+        out.append(("diagnosis of the shipped reference dataset: wall time", f"{ref[0]['wall_s']:.0f} s", "<= 120 s"))
+    return out
+
+
 def _coverage(doc: dict) -> list[tuple[str, str, str]]:
     rows = [s for s in doc["meta"]["summary"] if s["parameter"] == "all"]
     text = "; ".join(f"{_pct(s['coverage_hac'])} of {s['intervals']} ({s['scenario']})" for s in rows)
@@ -97,8 +110,8 @@ def _mujoco_fit(doc: dict) -> list[tuple[str, str, str]]:
 
 
 def _fit_speed(doc: dict) -> list[tuple[str, str, str]]:
-    rows = {r["method"].split(" (")[0]: r for r in doc["rows"]}
-    lsq, ppo = rows["least squares"], rows["PPO"]
+    rows = {r["key"]: r for r in doc["rows"]}
+    lsq, ppo = rows["lsq"], rows["ppo"]
 
     def summed(r: dict) -> float:
         return sum(g["fitted"] for g in r["held_out_final_head_m"].values())
@@ -137,7 +150,8 @@ def _faults(doc: dict) -> list[tuple[str, str, str]]:
 
 #: Results file -> how its headline rows are read.
 SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
-    "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix, "mujoco_robustness": _robustness,
+    "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix, "diagnose_accuracy": _accuracy,
+    "mujoco_robustness": _robustness,
     "mujoco_robustness_stiff": _robustness, "mujoco_fit": _mujoco_fit, "contact_time_constant": _contact_time_constant,
     "coverage": _coverage, "fault_matrix": _faults,
 }

@@ -14,8 +14,7 @@ from sysid.gap.metrics import compare_runs
 
 def final_head_errors(runs: Sequence[Run], params: ModelParameters) -> np.ndarray:
     """Final head-position error [m] of each run simulated with ``params``."""
-    return np.array([compare_runs(r, simulate_like(r, params=params)).to_json_dict()["head_final_error_m"]
-                     for r in runs])
+    return np.array([compare_runs(r, simulate_like(r, params=params)).head.final for r in runs])
 
 
 def time_to_reach(runs: Sequence[Run], history: Sequence[tuple[float, int, ModelParameters]],

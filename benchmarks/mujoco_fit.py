@@ -122,16 +122,16 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
     at_bound = [r.name for r in fit.report if r.at_bound]
     rows = []
     for run in hold:
-        before = compare_runs(run, simulate_like(run, params=start)).to_json_dict()
-        after = compare_runs(run, simulate_like(run, params=fit.params)).to_json_dict()
-        joint = after["joint_rmse_rad"]["mean"]
+        before = compare_runs(run, simulate_like(run, params=start))
+        after = compare_runs(run, simulate_like(run, params=fit.params))
+        joint = after.mean_joint_rmse
         rows.append({
             "config": config, "seed": seed, "heading_rad": heading, "gait_hz": run.gait_frequency_hz,
-            "head_final_m_nominal": before["head_final_error_m"], "head_final_m_fitted": after["head_final_error_m"],
-            "joint_rmse_rad_nominal": before["joint_rmse_rad"]["mean"], "joint_rmse_rad_fitted": joint,
+            "head_final_m_nominal": before.head.final, "head_final_m_fitted": after.head.final,
+            "joint_rmse_rad_nominal": before.mean_joint_rmse, "joint_rmse_rad_fitted": joint,
             "joint_rmse_over_floor": joint / JOINT_FLOOR_RAD,
-            "meets_head_bound": after["head_final_error_m"] <= HEAD_BOUND_M,
-            "meets_joint_bound": joint <= JOINT_BOUND_FACTOR * JOINT_FLOOR_RAD,
+            "meets_head_bound": bool(after.head.final <= HEAD_BOUND_M),
+            "meets_joint_bound": bool(joint <= JOINT_BOUND_FACTOR * JOINT_FLOOR_RAD),
             "fit_status": fit.status.value, "fit_seconds": wall, "at_bound": at_bound, "intervals": intervals,
             "fitted": {n: fit.params.value(n) for n in fit.params.free_names},
         })

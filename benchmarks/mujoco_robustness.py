@@ -99,9 +99,8 @@ def make_data(options: TwinOptions, truth: ModelParameters, duration_s: float, m
 
 def differences(a: list[Run], b: list[Run]) -> tuple[float, float]:
     """Mean over run pairs of the joint RMSE [rad] and the final head distance [m] between ``a`` and ``b``."""
-    gaps = [compare_runs(x, y).to_json_dict() for x, y in zip(a, b)]
-    return (float(np.mean([g["joint_rmse_rad"]["mean"] for g in gaps])),
-            float(np.mean([g["head_final_error_m"] for g in gaps])))
+    gaps = [compare_runs(x, y) for x, y in zip(a, b)]
+    return float(np.mean([g.mean_joint_rmse for g in gaps])), float(np.mean([g.head.final for g in gaps]))
 
 
 def effect_sizes(chosen: list[str], cases: dict[str, tuple[str, dict[str, Any]]], base: TwinOptions,

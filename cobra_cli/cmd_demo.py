@@ -59,13 +59,12 @@ def run(args: argparse.Namespace) -> int:
             simulated = simulate_like(measured, model=model, progress=bar)
         wall = time.perf_counter() - t0
         report = compare_runs(measured, simulated)
-        gap = report.to_json_dict()
         f = measured.gait_frequency_hz
         paths += [(f"measured {f} Hz", measured), (f"nominal model {f} Hz", simulated)]
-        finals[f"{f} Hz"] = {"nominal model": gap["head_final_error_m"]}
+        finals[f"{f} Hz"] = {"nominal model": report.head.final}
         reports.append((f, measured, simulated, report))
-        print(f"  {path.stem:22s} {f:6.2f} {gap['head_final_error_m']:15.3f} {gap['head_mean_error_m']:14.3f} "
-              f"{gap['joint_rmse_rad']['mean']:17.4f} {gap['window_correlation']['mean']:10.3f} {wall:8.2f}")
+        print(f"  {path.stem:22s} {f:6.2f} {report.head.final:15.3f} {report.head.mean:14.3f} "
+              f"{report.mean_joint_rmse:17.4f} {report.mean_window_correlation:10.3f} {wall:8.2f}")
     plot_head_paths(paths, figures["head_paths.png"], title="held-out runs: measured vs nominal model")
     plot_error_bars(finals, figures["head_error_per_gait.png"], "final head position error [m]",
                     title="nominal model, held-out runs (paper Eq. 7)")

@@ -10,13 +10,11 @@ from typing import Sequence
 from cobra_cli.cmd_check import check_before_fit
 from cobra_cli.common import check_writable, load_params, parse_names
 from cobra_model.errors import InputError
+from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
-from sysid.discrepancy.diagnose import DiagnoseConfig, Diagnosis, diagnose
+from sysid.discrepancy.report import OUTPUTS, write_diagnosis
 from sysid.gap.report import head_text
 from sysid.identification.splits import expand, read_runs
-
-OUTPUTS = ("report.html", "diagnosis.json", "augmented_params.json")
-
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -83,13 +81,7 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
 
     result = diagnose(train, held, params=start, config=config, progress=progress)
     bar.close()
-    out.mkdir(parents=True, exist_ok=True)
-    result.params_after.save(out / "augmented_params.json", force=True)
-    doc = result.to_json()
-    doc["augmented_params"] = str(out / "augmented_params.json")
-    doc["data_check"] = data_check.to_json_dict() if data_check is not None else None
-    (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
-    _write_report(result, out)
+    doc = write_diagnosis(result, out, data_check)
     if json_out:
         print(json.dumps(doc, indent=2, default=float))
         return 0
@@ -109,33 +101,3 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
         print(f"  {white.console_line()}")
     print(f"report: {out / 'report.html'}; model with the effect: {out / 'augmented_params.json'}")
     return 0
-
-
-def _write_report(result: Diagnosis, out: Path) -> None:
-    from sysid.gap import plots
-    from sysid.gap.report import HtmlReport, held_out_figures
-
-    page = HtmlReport("cobra diagnose")
-    page.heading("Verdict")
-    page.paragraph(result.verdict)
-    page.heading("Where the fitted model disagrees (held-out and training residuals)")
-    page.paragraph(result.signature.summary())
-    page.figure(plots.plot_signature([("before", result.signature), ("after", result.signature_after)],
-                                     out / "signature.png", title="residual signature before and after"),
-                "residual signature before and after")
-    for i, round_ in enumerate(result.rounds, start=1):
-        page.heading(f"Candidates, round {i}")
-        page.table(["effect", "fitted value", "unit", "held-out cost reduction", "held-out runs improved", "dBIC",
-                    "signature match", "refitted without it", "physical value"],
-                   [[c.name, c.value, c.unit, c.held_out_improvement, c.runs_improved, c.delta_bic, c.signature_match,
-                     "yes" if c.refit_without else "no", c.implausible or "yes"] for c in round_])
-        page.paragraph("Evidence is against the best fit without a new effect: the current model refitted "
-                       "alone, or a checked candidate's model refitted without its effect.")
-    page.heading("Augmented model")
-    fit = result.fits[-1]
-    if fit.residual_whiteness is not None:
-        page.paragraph(f"Residuals: {fit.residual_whiteness.verdict}")
-    page.table(["name", "unit", "value", "95% low", "95% high", "note"],
-               [[r.name, r.unit, r.value, r.ci_low, r.ci_high, r.reason] for r in fit.report])
-    held_out_figures(result.held, out, ("fitted, no effect", "with effect"), page)
-    page.write(out / "report.html")

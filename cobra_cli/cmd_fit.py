@@ -10,6 +10,7 @@ from cobra_cli.common import check_writable, load_params, parse_names
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 from sysid.identification.executor import make_executor
+from sysid.identification.fit_report import fit_document, write_fit_report
 from sysid.identification.lsq import FitResult
 from sysid.identification.objective import Objective, Weights
 from sysid.identification.splits import expand, read_runs
@@ -116,10 +117,7 @@ def run(args: argparse.Namespace) -> int:
     bar.close()
     executor.close()
     fitted = result.params
-    doc = fitted.to_json_dict()
-    doc["fit"] = {**result.to_json(), "train_runs": [str(p) for p in train_paths],
-                  "data_check": check.to_json_dict() if check is not None else None}
-    out.write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    out.write_text(json.dumps(fit_document(result, train_paths, check), indent=2, default=float) + "\n")
     print(f"{result.status.value} after {result.evaluations} evaluations in {result.seconds:.1f} s; "
           f"cost {result.initial_cost:.4g} -> {result.cost:.4g}")
     print(f"  {'parameter':16s} {'nominal':>10s} {'start':>10s} {'fitted':>10s} {'95% interval':>25s}  note")
@@ -139,41 +137,17 @@ def run(args: argparse.Namespace) -> int:
     for line in bound_warnings(result, fitted):
         print(line)
     print(f"wrote {out}")
+    held = []
     if validation:
-        from sysid.gap.report import HtmlReport, evaluate_held_out, head_text, held_out_figures
+        from sysid.gap.report import evaluate_held_out, head_text
         held = evaluate_held_out(validation, start, fitted)
         print("held-out runs, before -> after: final head error, joint RMSE")
         for h in held:
-            b, a = h.gap_before.to_json_dict(), h.gap_after.to_json_dict()
-            print(f"  {h.name:22s} {h.freq_hz:5.2f} Hz  head {head_text(b['head_final_error_m'], a['head_final_error_m'])}, "
-                  f"joints {b['joint_rmse_rad']['mean']:.4f} -> {a['joint_rmse_rad']['mean']:.4f} rad")
-            if a["head_omitted"]:
-                print(f"    {a['head_omitted']}")
-        if report_dir is not None:
-            report_dir.mkdir(parents=True, exist_ok=True)
-            page = HtmlReport(f"cobra fit ({result.method}): {result.status.value}")
-            page.heading("Parameters")
-            nan = float("nan")
-            extra = ["95% low without current", "95% high without current"] if without else []
-            page.table(["name", "unit", "nominal", "start", "fitted", "95% low", "95% high", *extra, "at bound", "note"],
-                       [[r.name, r.unit, r.nominal, r.initial, r.value, r.ci_low, r.ci_high,
-                         *([without[r.name].ci_low, without[r.name].ci_high] if r.name in without else
-                           [nan, nan] if without else []),
-                         "yes" if r.at_bound else "", r.reason] for r in result.report])
-            page.paragraph(f"{result.evaluations} objective evaluations, {result.seconds:.1f} s, cost "
-                           f"{result.initial_cost:.4g} -> {result.cost:.4g}.")
-            if result.interval_method:
-                page.paragraph(f"Intervals: {result.interval_method}.")
-            if result.residual_whiteness is not None:
-                page.paragraph(f"Residuals: {result.residual_whiteness.verdict}.")
-            if result.log:
-                page.heading("Iteration log")
-                page.table(["iteration", "horizon [s]", "cost", "trial cost", "accepted", "damping", "evaluations",
-                            "seconds"],
-                           [[e.iteration, e.horizon_s, e.cost, e.trial_cost, "yes" if e.accepted else "", e.damping,
-                             e.evaluations, e.seconds] for e in result.log])
-            if result.method == "ppo" and (report_dir / "reward_curve.png").exists():
-                page.figure(report_dir / "reward_curve.png", "PPO reward curve")
-            held_out_figures(held, report_dir, ("before", "after"), page)
-            print(f"report: {page.write(report_dir / 'report.html')}")
+            b, a = h.gap_before, h.gap_after
+            print(f"  {h.name:22s} {h.freq_hz:5.2f} Hz  head {head_text(b.head.final, a.head.final)}, "
+                  f"joints {b.mean_joint_rmse:.4f} -> {a.mean_joint_rmse:.4f} rad")
+            if a.head_omitted:
+                print(f"    {a.head_omitted}")
+    if report_dir is not None:
+        print(f"report: {write_fit_report(result, held, report_dir)}")
     return 0

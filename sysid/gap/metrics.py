@@ -526,6 +526,11 @@ class GapReport:
         }
 
     @property
+    def mean_window_correlation(self) -> float:
+        """Time-and-joint mean of the measured-vs-simulated sliding-window correlation."""
+        return float(self.correlation["measured_vs_simulated"]["mean"])
+
+    @property
     def mean_joint_rmse(self) -> float:
         """Mean over the joints of the per-joint RMS error [rad] (NaN joints left out)."""
         return _nan_mean(self.joint_rmse)

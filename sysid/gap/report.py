@@ -93,8 +93,8 @@ def pair_held_out(runs: Sequence[Run], before: Sequence[Run], after: Sequence[Ru
 
 
 def head_text(before: float | None, after: float | None) -> str:
-    """``"0.0123 -> 0.0045 m"``, or why there is no head error (joint-only runs)."""
-    if before is None or after is None:
+    """``"0.0123 -> 0.0045 m"``, or why there is no head error (joint-only runs: None or NaN)."""
+    if before is None or after is None or not (np.isfinite(before) and np.isfinite(after)):
         return "omitted (joint-only runs: no head pose)"
     return f"{before:.4f} -> {after:.4f} m"
 
@@ -145,20 +145,16 @@ def held_out_figures(held: Sequence[HeldOut], out_dir: Path, labels: tuple[str, 
 
     b, a = labels
     joint_only = any(h.gap_after.head_omitted for h in held)
-    metric, unit = ("joint_rmse_rad", "joint RMSE [rad]") if joint_only else ("head_final_error_m", "final head error [m]")
+    unit = "joint RMSE [rad]" if joint_only else "final head error [m]"
 
-    def value(gap: dict) -> float:
-        return gap[metric]["mean"] if joint_only else gap[metric]
+    def value(gap: GapReport) -> float:
+        return gap.mean_joint_rmse if joint_only else gap.head.final
 
-    table = {f"{h.freq_hz:g} Hz ({h.name})": {b: value(h.gap_before.to_json_dict()),
-                                               a: value(h.gap_after.to_json_dict())} for h in held}
+    table = {f"{h.freq_hz:g} Hz ({h.name})": {b: value(h.gap_before), a: value(h.gap_after)} for h in held}
     report.heading("Held-out runs: final head position error (paper Eq. 7)" if not joint_only else
                    "Held-out runs: joint RMSE (joint-only runs: no head pose, head metrics omitted)")
-    rows = []
-    for h in held:
-        jb, ja = h.gap_before.to_json_dict(), h.gap_after.to_json_dict()
-        rows.append([h.name, h.freq_hz, jb["head_final_error_m"], ja["head_final_error_m"], jb["head_mean_error_m"],
-                     ja["head_mean_error_m"], jb["joint_rmse_rad"]["mean"], ja["joint_rmse_rad"]["mean"]])
+    rows = [[h.name, h.freq_hz, h.gap_before.head.final, h.gap_after.head.final, h.gap_before.head.mean,
+             h.gap_after.head.mean, h.gap_before.mean_joint_rmse, h.gap_after.mean_joint_rmse] for h in held]
     report.table(["run", "f [Hz]", f"final [m] {b}", f"final [m] {a}", f"mean [m] {b}", f"mean [m] {a}",
                   f"joint RMSE [rad] {b}", f"joint RMSE [rad] {a}"], rows)
     report.figure(plots.plot_error_bars(table, out_dir / "held_out_head_error.png", unit,

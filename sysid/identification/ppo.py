@@ -56,27 +56,11 @@ AT_BOUND_UNIT = 1e-3
 class PPOSettings:
     """Environment and PPO settings of :func:`fit_ppo` (documented defaults).
 
-    The defaults were chosen on a cheap stand-in with the shape of the two-parameter
-    (``mu_c``, ``joint_damping``) landscape measured with the simulator (total V-shaped in the
-    ``mu_c`` offset, ~0.4 per unit of z, plus a weak damping term), a guess 40 % off: over 6
-    seeds of 1024 timesteps (one environment, 32 steps per update), a narrower initial policy
-    (``log_std_init`` -1 rather than -0.5 or 0) and a state without the objective terms gave
-    the best late mean episode reward (-0.11, against -0.18 with the terms and -0.34 for an
-    untrained policy) and the best parameters. With 256 timesteps or fewer every variant, an
-    untrained policy included, finds about the same best vector: with two parameters the
-    search is carried by exploration and the best-so-far bookkeeping.
-
-    ``start_from_best`` was measured on ``benchmarks/recovery.py`` (9 parameters, guess 30-50 %
-    off, seed 0): with the paper's fixed start PPO closed 61 % of the held-out head-error gap in
-    1024 timesteps; starting each episode from the best parameters so far it closed 66 % in 1024,
-    82 % in 1728 and 84 % in 3456. With the later start-pose and command-interpolation fixes:
-    76 % in 2048 and 85 % in 4096; with seeds 1 and 2 at 4096, 87 % and 71 %.
-
-    ``episode_length`` was 8 until seed 2 of that benchmark stalled: its best total stayed at
-    0.0199 from 1024 to 8192 timesteps (70-71 % of the gap). Every episode wandered 8 steps
-    from the best parameters (mean step total about 4x the best), so most evaluations were
-    spent far from them. With 2 steps per episode, more of them start from the best: seeds
-    0, 1, 2 close 80, 83, 80 % in 1024 timesteps and 88, 93, 88 % in 4096 (README).
+    Each episode starts from the best parameters found so far (``start_from_best``) and lasts
+    two steps, so that most evaluations are spent near the best parameters instead of wandering
+    from the paper's fixed start; the policy starts narrow (``log_std_init`` -1) and observes the
+    unit coordinates only. How each default was chosen, with the measurements, is in
+    ``CHANGELOG.md`` ("PPO settings: how the defaults were chosen").
 
     Attributes:
         episode_length: environment steps (objective evaluations) per episode.

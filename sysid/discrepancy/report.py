@@ -1,0 +1,57 @@
+"""What ``cobra diagnose`` writes into its output folder: ``augmented_params.json`` (the model
+with the effects named), ``diagnosis.json`` and ``report.html`` with its figures."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from sysid.discrepancy.diagnose import Diagnosis
+from sysid.gap.report import HtmlReport, held_out_figures
+from sysid.identification.datacheck import DataCheck
+
+#: The files :func:`write_diagnosis` writes (besides the report's figures).
+OUTPUTS = ("report.html", "diagnosis.json", "augmented_params.json")
+
+
+def write_diagnosis(result: Diagnosis, out: Path, data_check: DataCheck | None = None) -> dict:
+    """Write :data:`OUTPUTS` into ``out`` (created if missing, files overwritten: the caller
+    checks first) and return ``diagnosis.json``'s content."""
+    out.mkdir(parents=True, exist_ok=True)
+    result.params_after.save(out / "augmented_params.json", force=True)
+    doc = result.to_json()
+    doc["augmented_params"] = str(out / "augmented_params.json")
+    doc["data_check"] = data_check.to_json_dict() if data_check is not None else None
+    (out / "diagnosis.json").write_text(json.dumps(doc, indent=2, default=float) + "\n")
+    write_diagnosis_report(result, out)
+    return doc
+
+
+def write_diagnosis_report(result: Diagnosis, out: Path) -> Path:
+    """``out/report.html``: the verdict, the residual signature before and after, every round's
+    candidates with their evidence, the augmented model and the held-out figures."""
+    from sysid.gap import plots
+
+    page = HtmlReport("cobra diagnose")
+    page.heading("Verdict")
+    page.paragraph(result.verdict)
+    page.heading("Where the fitted model disagrees (held-out and training residuals)")
+    page.paragraph(result.signature.summary())
+    page.figure(plots.plot_signature([("before", result.signature), ("after", result.signature_after)],
+                                     out / "signature.png", title="residual signature before and after"),
+                "residual signature before and after")
+    for i, round_ in enumerate(result.rounds, start=1):
+        page.heading(f"Candidates, round {i}")
+        page.table(["effect", "fitted value", "unit", "held-out cost reduction", "held-out runs improved", "dBIC",
+                    "signature match", "refitted without it", "physical value"],
+                   [[c.name, c.value, c.unit, c.held_out_improvement, c.runs_improved, c.delta_bic, c.signature_match,
+                     "yes" if c.refit_without else "no", c.implausible or "yes"] for c in round_])
+        page.paragraph("Evidence is against the best fit without a new effect: the current model refitted "
+                       "alone, or a checked candidate's model refitted without its effect.")
+    page.heading("Augmented model")
+    fit = result.fits[-1]
+    if fit.residual_whiteness is not None:
+        page.paragraph(f"Residuals: {fit.residual_whiteness.verdict}")
+    page.table(["name", "unit", "value", "95% low", "95% high", "note"],
+               [[r.name, r.unit, r.value, r.ci_low, r.ci_high, r.reason] for r in fit.report])
+    held_out_figures(result.held, out, ("fitted, no effect", "with effect"), page)
+    return page.write(out / "report.html")
