@@ -27,6 +27,21 @@ N_GROUND = 10
 A_DAMPING, A_RKM, A_COULOMB, A_TAU_MAX, A_COULOMB_EPS, A_ENC_OFFSET, A_BACKLASH = range(7)
 N_ACT = 7
 
+#: Where a parameter of a parameter set lands in ``ground`` (by name: the simulator packs every
+#: name listed here with :meth:`ModelParameters.get`, so an effect parameter the set lacks
+#: enters at its inactive value). An effect that acts in these kernels adds its slot here.
+GROUND_PARAMETERS: dict[str, int] = {
+    "k1": G_K1, "k2": G_K2, "mu_c": G_MU_C, "mu_s": G_MU_S, "mu_v": G_MU_V, "v_s": G_V_S,
+    "lateral_friction_ratio": G_LATERAL, "friction_cone": G_CONE, "contact_rounding": G_ROUND,
+}
+#: Where a per-joint parameter lands in ``act`` (packed with :meth:`ModelParameters.per_joint`).
+#: ``A_RKM`` (the motor constant times the gear ratio) and the settings' ``A_COULOMB_EPS`` are
+#: packed by the simulator itself.
+ACTUATOR_PARAMETERS: dict[str, int] = {
+    "joint_damping": A_DAMPING, "joint_coulomb": A_COULOMB, "torque_limit": A_TAU_MAX,
+    "encoder_offset": A_ENC_OFFSET, "backlash": A_BACKLASH,
+}
+
 # Indices into the scalar settings array ``scal``.
 S_DT, S_VOLTAGE, S_RESISTANCE, S_MAX_DEPTH, S_MAX_SPEED, S_KP, S_KI, S_KD, S_PWM_LIMIT = range(9)
 N_SCAL = 9

@@ -28,7 +28,10 @@ Model effects beyond the nominal parameter table enter through parameters of the
 ``encoder_offset`` [rad] (the encoder reads ``q + offset``), ``actuator_delay`` [s] (commands
 reach the servo late) and ``link_mass_error`` [kg] (added to the root module). A set without
 one of them simulates it at its inactive value, which lives only in
-``cobra_model.parameters.EFFECT_PARAMETERS`` (see ``sysid.discrepancy.effects``).
+``cobra_model.parameters.EFFECT_PARAMETERS`` (see ``sysid.discrepancy.effects``). Where a
+parameter lands in the kernels' arrays is the kernels' own table
+(``integrators.kernels.GROUND_PARAMETERS``, ``ACTUATOR_PARAMETERS``); the simulator packs by it,
+so an effect that acts in the kernels is added there and nowhere in this module.
 """
 from __future__ import annotations
 
@@ -174,21 +177,15 @@ class Simulator:
         self._pin = self.model.pin_model
         self._data = self._pin.createData()
         ground = np.zeros(K.N_GROUND)
-        ground[K.G_K1], ground[K.G_K2] = p.k1, p.k2
-        ground[K.G_MU_C], ground[K.G_MU_S], ground[K.G_MU_V], ground[K.G_V_S] = p.mu_c, p.mu_s, p.mu_v, p.v_s
+        for name, slot in K.GROUND_PARAMETERS.items():
+            ground[slot] = p.get(name)
         ground[K.G_EPS] = s.sgn_eps
-        ground[K.G_LATERAL] = p.get("lateral_friction_ratio")
-        ground[K.G_CONE] = p.get("friction_cone")
-        ground[K.G_ROUND] = p.get("contact_rounding")
         self.ground = ground
         act = np.zeros((n, K.N_ACT))
-        act[:, K.A_DAMPING] = per_joint("joint_damping")
+        for name, slot in K.ACTUATOR_PARAMETERS.items():
+            act[:, slot] = per_joint(name)
         act[:, K.A_RKM] = SERVO_GEAR_RATIO * per_joint("motor_km")
-        act[:, K.A_COULOMB] = per_joint("joint_coulomb")
-        act[:, K.A_TAU_MAX] = per_joint("torque_limit")
         act[:, K.A_COULOMB_EPS] = s.joint_coulomb_eps
-        act[:, K.A_ENC_OFFSET] = per_joint("encoder_offset")
-        act[:, K.A_BACKLASH] = per_joint("backlash")
         self.act = act
         self.delay_s = p.get("actuator_delay")
         g = s.gains

@@ -21,6 +21,11 @@ lacks it; adding the parameter to a :class:`ModelParameters` switches the effect
 | ``encoder_offset`` | ``encoder_offset`` [rad] | every encoder reads ``q + offset`` (the loop regulates the reading) | -0.1-0.1 |
 | ``link_mass_error`` | ``link_mass_error`` [kg] | mass added to (or removed from) the head module, a payload | -0.3-1.2 |
 
+Adding an effect that acts in the simulator's kernels: its parameter (unit, bounds, inactive
+value) in ``EFFECT_PARAMETERS``, its :class:`Effect` here, its slot in the kernels' table
+(``integrators.kernels.GROUND_PARAMETERS`` or ``ACTUATOR_PARAMETERS``) and its physics in the
+kernel that reads that slot; the simulator and the batch pack the arrays from that table.
+
 A fitted value outside the last column (the reasons are beside each :class:`Effect` below), or
 on a bound, is no physical value of the effect: the workflow reports it as a proxy for a
 structural difference instead of naming it (``sysid.discrepancy.diagnose.choose``).
