@@ -44,6 +44,9 @@ class BatchSimulator:
                  threads: int = 2):
         if not params:
             raise InputError("a batch needs at least one parameter set")
+        if settings is not None and settings.scheme != "velocity":
+            raise InputError(f"batched rollouts use the velocity-form step; scheme {settings.scheme!r} is for "
+                             f"single rollouts (Simulator.rollout)")
         self.sims = [Simulator(model, p, settings) for p in params]
         first = self.sims[0]
         self.settings = first.settings

@@ -1,0 +1,195 @@
+"""The momentum-form step (``SimSettings(scheme="momentum")``, :mod:`integrators.momentum_step`):
+bounded energy error where the velocity form drifts, on COBRA and on example-robot-data's Solo
+and double pendulum, with the same contact and passivity invariants as the velocity form.
+
+Bounds. Symplectic Euler keeps the energy within an O(dt) band around a conserved "modified"
+energy instead of drifting. Measured on COBRA in free flight without gravity (1 rad/s rms joint
+rates, dt = 1 ms, 60 s): linear trend +1e-4 % per second (the velocity form: +0.39 % per
+second), 10 s window means +0.013..+0.025 % of E(0), largest excursion 0.10 %. The tests assert
+the issue's 0.02 % per second on the trend, that the level of the last 10 s is within 0.02 % of
+the first 10 s (no systematic growth: the velocity form moves it by ~20 %) and a 0.3 % band.
+The step is first order in the trajectory, which a refinement study asserts.
+"""
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from cobra_model.errors import InputError
+from cobra_model.model import RobotModel
+from cobra_model.parameters import ModelParameters
+from integrators.batch import BatchSimulator
+from integrators.simulator import SimSettings, Simulator
+
+
+def undamped_params() -> ModelParameters:
+    p = ModelParameters.nominal()
+    return p.with_parameters([replace(p["joint_damping"], value=0.0, min=0.0, log_scale=False)])
+
+
+def energy(model: RobotModel, q: np.ndarray, v: np.ndarray) -> float:
+    return model.kinetic_energy(q, v) + model.potential_energy(q)
+
+
+def free_flight(model: RobotModel, seconds: float, *, scheme: str = "momentum", dt: float = 1e-3,
+                seed: int = 0, record_s: float = 0.01):
+    """Unpowered, undamped, contact-free flight without gravity from a random pose and speed."""
+    model = model.without_contacts().with_gravity(np.zeros(3))
+    sim = Simulator(model, undamped_params(), SimSettings(dt=dt, control_dt=dt, scheme=scheme))
+    rng = np.random.default_rng(seed)
+    st = sim.state(model.configuration(rng.uniform(-0.8, 0.8, model.n_joints), np.array([0, 0, 1.0])),
+                   rng.normal(0, 1.0, model.nv))
+    off = np.zeros(model.n_joints, dtype=bool)
+    tr = sim.rollout(st, np.zeros((1, model.n_joints)), seconds, record_every=int(round(record_s / dt)),
+                     torque_on=off)
+    E = np.array([energy(sim.model, q, v) for q, v in zip(tr.q, tr.v)])
+    return sim, tr, (E - E[0]) / E[0]
+
+
+def assert_bounded(t: np.ndarray, rel: np.ndarray, band: float) -> None:
+    """No drift (trend at most 0.02 % per second), no growth of the level between the first and
+    the last 10 s, and every excursion within ``band`` (fractions of E(0))."""
+    trend = np.polyfit(t - t[0], rel, 1)[0]
+    assert abs(trend) <= 2e-4, f"energy trend {100 * trend:+.4f} % per second"
+    first, last = rel[t - t[0] < 10.0], rel[t - t[0] >= t[-1] - t[0] - 10.0]
+    assert abs(last.mean() - first.mean()) <= 2e-4
+    assert np.abs(rel).max() <= band
+
+
+def test_lagrangian_gradient_matches_finite_differences_in_the_chart(cobra):
+    """``dL/d delta`` of the chart ``q (+) delta`` (body velocity ``J(delta) delta_dot``, J the
+    derivative of ``pin.integrate``), by central differences, on a turned, moving COBRA with
+    gravity: the root's chart term and Pinocchio's ``C^T v`` together make the exact gradient."""
+    import pinocchio as pin
+
+    from integrators.momentum_step import MomentumStep
+
+    model = cobra.without_contacts().with_armature(np.full(cobra.n_joints, 0.03))
+    pm, data = model.pin_model, model.pin_model.createData()
+    rng = np.random.default_rng(5)
+    q = model.configuration(rng.uniform(-0.8, 0.8, model.n_joints), np.array([0.1, -0.2, 0.3]),
+                            np.array([0.9, 0.2, -0.3, 0.25]) / np.linalg.norm([0.9, 0.2, -0.3, 0.25]))
+    v = rng.normal(0, 1.0, model.nv)
+
+    def lagrangian(delta: np.ndarray) -> float:
+        q_d = pin.integrate(pm, q, delta)
+        body_v = pin.dIntegrate(pm, q, delta, pin.ArgumentPosition.ARG1) @ v
+        return model.kinetic_energy(q_d, body_v) - pin.computePotentialEnergy(pm, data, q_d)
+
+    h = 1e-6
+    fd = np.array([(lagrangian(h * e) - lagrangian(-h * e)) / (2 * h) for e in np.eye(model.nv)])
+    analytic = MomentumStep(model, 1e-3).lagrangian_gradient(q, v)
+    assert np.abs(analytic - fd).max() <= 1e-6 * np.abs(fd).max()
+    # without the root's chart term it is off by a share of the gradient itself
+    C = pin.computeCoriolisMatrix(pm, data, q, v)
+    assert np.abs(C.T @ v - pin.computeGeneralizedGravity(pm, data, q) - fd).max() > 0.05 * np.abs(fd).max()
+
+
+@pytest.mark.slow
+def test_cobra_free_flight_energy_bounded_over_60_s(cobra):
+    sim, tr, rel = free_flight(cobra, 60.0)
+    assert_bounded(tr.t, rel, 3e-3)
+    # the same flight in the velocity form drifts: the test can tell the two apart
+    _, tr_v, rel_v = free_flight(cobra, 10.0, scheme="velocity")
+    assert np.polyfit(tr_v.t, rel_v, 1)[0] > 1e-3
+
+
+def test_cobra_free_flight_momenta_conserved(cobra):
+    """Without gravity nothing external acts: linear and angular momentum keep their values to
+    first order (the step is symplectic, not a momentum-preserving variational integrator).
+    Measured over 5 s: 0.15 % (linear) and 0.12 % (angular) of their initial size; the velocity
+    form: 0.7 % and 2.7 %."""
+    sim, tr, _ = free_flight(cobra, 5.0, record_s=0.05)
+    P = np.array([sim.model.momentum(q, v) for q, v in zip(tr.q, tr.v)])
+    lin, ang = P[:, 0], P[:, 1]
+    assert np.abs(lin - lin[0]).max() <= 3e-3 * np.linalg.norm(lin[0])
+    assert np.abs(ang - ang[0]).max() <= 3e-3 * np.linalg.norm(ang[0])
+
+
+def test_first_order_convergence(cobra):
+    """Trajectory error after 0.3 s against a dt = 0.05 ms reference halves with dt (first order)."""
+    finals = {dt: free_flight(cobra, 0.3, dt=dt, record_s=0.3)[1].q[-1, 7:] for dt in (2e-3, 1e-3, 5e-4, 5e-5)}
+    errors = [np.abs(finals[dt] - finals[5e-5]).max() for dt in (2e-3, 1e-3, 5e-4)]
+    orders = np.log2(np.array(errors[:-1]) / np.array(errors[1:]))
+    assert np.all((orders > 0.8) & (orders < 1.3)), orders
+
+
+def test_double_pendulum_with_gravity_energy_bounded(erd_dir):
+    urdf = erd_dir / "double_pendulum_description" / "urdf" / "double_pendulum.urdf"
+    model = RobotModel.from_urdf(urdf, floating=False).without_contacts()
+    dt = 1e-3
+    sim = Simulator(model, undamped_params(), SimSettings(dt=dt, control_dt=dt, scheme="momentum"))
+    st = sim.state(model.configuration(np.array([1.2, -0.6])), np.zeros(2))
+    tr = sim.rollout(st, np.zeros((1, 2)), 60.0, record_every=10, torque_on=np.zeros(2, bool))
+    E = np.array([energy(sim.model, q, v) for q, v in zip(tr.q, tr.v)])
+    swing = np.ptp([sim.model.potential_energy(q) for q in tr.q])
+    assert swing > 0.1                                                   # it really swings
+    assert_bounded(tr.t, (E - E[0]) / swing, 0.01)
+
+
+def test_solo_free_flight_energy_bounded(erd_dir):
+    urdf = erd_dir / "solo_description" / "robots" / "solo.urdf"
+    model = RobotModel.from_urdf(urdf, floating=True, package_dirs=[str(erd_dir.parent.parent)])
+    _, tr, rel = free_flight(model, 20.0)
+    assert_bounded(tr.t, rel, 5e-4)  # measured: largest excursion 3.4e-5 (velocity form: trend 0.16 % per second)
+
+
+def test_solo_dropped_on_ground_settles_passively(erd_dir):
+    """Contacts and joint damping with the momentum step: the energy (ground springs included)
+    only falls and Solo comes to rest standing on its feet."""
+    urdf = erd_dir / "solo_description" / "robots" / "solo.urdf"
+    feet = [(f"{leg}_FOOT", 0.0175) for leg in ("FL", "FR", "HL", "HR")]
+    model = RobotModel.from_urdf(urdf, floating=True, contact_frames=feet, package_dirs=[str(erd_dir.parent.parent)])
+    params = ModelParameters.nominal().with_values(joint_damping=0.05, armature=1e-3)
+    sim = Simulator(model, params, SimSettings(dt=5e-4, control_dt=5e-4, scheme="momentum"))
+    q = model.configuration(np.tile([0.8, -1.6], 4), np.array([0, 0, 0.35]))
+    tr = sim.rollout(sim.state(q), np.zeros((1, 8)), 2.0, record_every=20, torque_on=np.zeros(8, bool))
+
+    def total(q_, v_):  # the ground spring stores energy too
+        depth = np.minimum(sim.model.contact_points(q_)[:, 2], 0.0)
+        return energy(sim.model, q_, v_) + 0.5 * params.k1 * np.sum(depth**2)
+    E = np.array([total(q_, v_) for q_, v_ in zip(tr.q, tr.v)])
+    assert np.all(np.diff(E) <= 1e-3 * E[0])
+    assert E[-1] < 0.5 * E[0]
+    foot_z = sim.model.contact_points(tr.q[-1])[-4:, 2]
+    assert np.all(foot_z < 0.0) and np.all(foot_z > -0.01)  # standing on the ground, shallow
+    assert np.abs(tr.v[-1]).max() < 0.5
+
+
+def test_cobra_on_ground_gait_converges_to_the_velocity_form(cobra):
+    """Both steps are first-order discretisations of one model: on a 3 s gait with ground
+    contact and servos their head paths differ by O(dt) (measured 4.7 mm of 0.38 m at 1 ms,
+    2.4 mm at 0.5 ms, 1.2 mm at 0.25 ms)."""
+    from cobra_model.gait import SidewindingGait
+
+    def head_end(scheme: str, dt: float) -> np.ndarray:
+        sim = Simulator(cobra, settings=SimSettings(dt=dt, control_dt=1e-3, scheme=scheme))
+        tr = sim.rollout(sim.rest_state(), SidewindingGait(0.5, ramp_s=0.5).q_ref, 3.0,
+                         record_every=int(round(3.0 / dt)))
+        return tr.q[-1, :2] - tr.q[0, :2]
+    gap = {dt: np.linalg.norm(head_end("momentum", dt) - head_end("velocity", dt)) for dt in (1e-3, 5e-4)}
+    assert np.linalg.norm(head_end("velocity", 1e-3)) > 0.3                 # it sidewinds
+    assert gap[1e-3] < 0.02
+    assert 1.6 < gap[1e-3] / gap[5e-4] < 2.5                                 # the gap halves with dt
+
+
+def test_unknown_scheme_and_batched_momentum_are_refused(cobra):
+    with pytest.raises(ValueError, match="scheme must be one of velocity, momentum, got 'rk4'"):
+        SimSettings(scheme="rk4")
+    with pytest.raises(InputError, match="batched rollouts use the velocity-form step"):
+        BatchSimulator(cobra, [ModelParameters.nominal()], SimSettings(scheme="momentum"))
+
+
+def test_cobra_simulate_takes_the_scheme(tmp_path, capsys):
+    from cobra_cli.main import main
+    from cobra_model.run_files import read_run
+
+    heads = {}
+    for scheme in ("velocity", "momentum"):
+        assert main(["simulate", "--duration", "2", "--scheme", scheme, "--out", str(tmp_path / f"{scheme}.csv")]) == 0
+        run = read_run(tmp_path / f"{scheme}.csv")
+        assert run.meta["sim_settings"]["scheme"] == scheme
+        heads[scheme] = run.head_pos[-1, :2]
+    assert 0 < np.linalg.norm(heads["momentum"] - heads["velocity"]) < 0.01   # two steps, one model
