@@ -62,19 +62,24 @@ def test_integrate_equals_pinocchio(cobra, seed):
     assert np.allclose(q_out[7:], ref[7:], atol=1e-14)
 
 
-def _assert_ground_invariants(sim: Simulator, rng: np.random.Generator, n: int) -> None:
-    """Normal force never negative, no adhesion, friction power never positive (random states)."""
+def _assert_ground_invariants(sim: Simulator, rng: np.random.Generator, n: int, sample=None) -> None:
+    """Normal force never negative, no adhesion, friction power never positive (random states:
+    ``sample(rng)`` -> (q, v), default :func:`_random_state` at a random height)."""
     rounding = sim.ground[K.G_ROUND]
+    sample = sample or (lambda rng: _random_state(sim.model, rng, z=rng.uniform(-0.01, 0.06)))
+    touching = 0
     for _ in range(n):
-        q, v = _random_state(sim.model, rng, z=rng.uniform(-0.01, 0.06))
+        q, v = sample(rng)
         v *= rng.uniform(0.1, 5.0)
-        _, _, X, F = _forces(sim, q, v)
+        _, _, X, F = _forces(sim, q, v)  # a state deeper than max_depth is flagged, its forces still hold
+        touching += int(np.any(F[:, 2] > 0))
         assert np.all(F[:, 2] >= 0)
         assert np.all(F[X[:, 2] >= 0] == 0)
         assert np.allclose(X, sim.model.contact_points(q, rounding), atol=1e-12)
         vel = sim.model.contact_velocities(q, v, rounding)
         friction_power = np.einsum("ij,ij->i", F[:, :2], vel[:, :2])
         assert np.all(friction_power <= 1e-12)
+    assert touching >= n // 4, f"only {touching} of {n} random states touch the ground"
 
 
 def test_ground_law_pointwise(cobra):
@@ -132,3 +137,19 @@ def test_unsupported_joint_is_reported(erd_dir):
     urdf = erd_dir / "double_pendulum_description" / "urdf" / "double_pendulum_continuous.urdf"
     with pytest.raises(ValueError, match="supports revolute joints"):
         RobotModel.from_urdf(urdf, floating=False)
+
+
+def test_ground_law_pointwise_on_robots_this_project_did_not_write(erd_dir):
+    """The same invariants on Solo (four spherical feet, floating) and on the double pendulum
+    with point contacts at its joints (fixed base at z = 0, so its links reach below the ground)."""
+    feet = [(f"{leg}_FOOT", 0.0175) for leg in ("FL", "FR", "HL", "HR")]
+    solo = RobotModel.from_urdf(erd_dir / "solo_description" / "robots" / "solo.urdf", floating=True,
+                                contact_frames=feet, package_dirs=[str(erd_dir.parent.parent)])
+    pendulum = RobotModel.from_urdf(erd_dir / "double_pendulum_description" / "urdf" / "double_pendulum.urdf",
+                                    floating=False, contact_frames=[("link1", 0.02), ("link2", 0.02)])
+    _assert_ground_invariants(Simulator(solo), np.random.default_rng(9), 100,
+                              lambda rng: _random_state(solo, rng, z=rng.uniform(0.15, 0.3)))
+    # near horizontal, the point at the second joint is within a centimetre of the ground, above or below
+    _assert_ground_invariants(Simulator(pendulum), np.random.default_rng(10), 100,
+                              lambda rng: (np.array([rng.uniform(1.65, 1.85), rng.uniform(-0.2, 0.2)]),
+                                           rng.normal(0, 0.5, 2)))
