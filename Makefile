@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/mujoco_robustness.py --contact stiff
 	$(PY) benchmarks/diagnose_matrix.py
 	$(PY) benchmarks/contact_time_constant.py
+	$(PY) benchmarks/contact_law.py
 	$(PY) benchmarks/mujoco_fit.py
 	$(PY) benchmarks/headline.py  # the README's headline table from benchmarks/results/
 

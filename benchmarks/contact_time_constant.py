@@ -59,8 +59,15 @@ def our_final_head(model: CobraModel, params: ModelParameters, gait: Sidewinding
     return traj.q[-1, :2].copy()
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def start_configuration(model: CobraModel, gait: SidewindingGait) -> np.ndarray:
+    """The rest pose both engines start from: the gait's first command, heading :data:`HEADING_RAD`
+    (as ``record_mujoco``)."""
+    return Simulator(model).rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=HEADING_RAD).q
+
+
+def parse_run_args(description: str, argv: list[str] | None) -> tuple[float, list[float]]:
+    """``--duration`` [s] and ``--gaits`` [Hz] of the contact benchmarks, checked."""
+    parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--duration", type=float, default=6.0, help="run length [s] (default 6)")
     parser.add_argument("--gaits", default="0.35,0.5,0.65", help="gait frequencies [Hz]")
     args = parser.parse_args(argv)
@@ -72,6 +79,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--gaits: expected comma-separated frequencies [Hz], got {args.gaits!r}")
     if not gaits or any(not f > 0 for f in gaits):
         parser.error(f"--gaits: expected positive frequencies [Hz], got {args.gaits!r}")
+    return args.duration, gaits
+
+
+def main(argv: list[str] | None = None) -> int:
+    duration, gaits = parse_run_args(__doc__.splitlines()[0], argv)
     model = CobraModel.load()
     truth = ModelParameters.nominal().with_values(**TRUTH)
     ours = twin_counterpart(truth)
@@ -79,26 +91,26 @@ def main(argv: list[str] | None = None) -> int:
     t_all = time.perf_counter()
     for f in gaits:
         gait = SidewindingGait(f)
-        q0 = Simulator(model).rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=HEADING_RAD).q  # as record_mujoco
+        q0 = start_configuration(model, gait)
         start = q0[:2]
         print(f"[{time.perf_counter() - t_all:5.0f} s] {f:g} Hz: our simulator and its sweep", file=sys.stderr,
               flush=True)
-        at_values = our_final_head(model, ours, gait, args.duration, q0)
-        swept = [at_values] + [our_final_head(model, ours.with_values(**change), gait, args.duration, q0)
+        at_values = our_final_head(model, ours, gait, duration, q0)
+        swept = [at_values] + [our_final_head(model, ours.with_values(**change), gait, duration, q0)
                                for change in SWEEP]
         for tc in TIME_CONSTANTS_S:
             print(f"[{time.perf_counter() - t_all:5.0f} s] {f:g} Hz: MuJoCo, time constant {tc * 1e3:g} ms",
                   file=sys.stderr, flush=True)
             options = dataclasses.replace(twin_options(truth), solref=(tc, 1.0), timestep=MUJOCO_STEP_S)
             mj = mujoco_twin.build(model.urdf_path, options, truth)
-            _, q, _ = rollout(mj, q0, gait.q_ref, args.duration, record_every=int(round(args.duration / MUJOCO_STEP_S)),
+            _, q, _ = rollout(mj, q0, gait.q_ref, duration, record_every=int(round(duration / MUJOCO_STEP_S)),
                               error_limit_rad=mujoco_twin.servo_error_limit(options))
             final = q[-1, :2]
             rows.append({"gait_hz": f, "time_constant_s": tc, "mujoco_displacement_m": (final - start).tolist(),
                          "ours_displacement_m": (at_values - start).tolist(),
                          "distance_at_mujoco_values_m": float(np.linalg.norm(at_values - final)),
                          "closest_of_sweep_m": float(min(np.linalg.norm(s - final) for s in swept))})
-    meta = {"duration_s": args.duration, "heading_rad": HEADING_RAD, "truth": TRUTH, "mujoco_step_s": MUJOCO_STEP_S,
+    meta = {"duration_s": duration, "heading_rad": HEADING_RAD, "truth": TRUTH, "mujoco_step_s": MUJOCO_STEP_S,
             "ours": {n: ours.value(n)
                      for n in ("mu_c", "mu_s", "mu_v", "friction_cone", "contact_rounding", "k1", "k2")},
             "sweep": list(SWEEP), "wall_s": time.perf_counter() - t_all}

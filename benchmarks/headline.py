@@ -130,6 +130,16 @@ def _contact_time_constant(doc: dict) -> list[tuple[str, str, str]]:
              f"{100 * min(default):.0f}-{100 * max(default):.0f} cm on its default (20 ms)", "-")]
 
 
+def _contact_law(doc: dict) -> list[tuple[str, str, str]]:
+    soft = [r for r in doc["rows"] if r["time_constant_s"] == 0.02]
+    rows_cm = [100 * r["soft_constraint_to_mujoco_m"] for r in soft]
+    ours_cm = [100 * r["ours_to_mujoco_m"] for r in soft]
+    return [("MuJoCo's soft frictional constraint (pyramid edges, 20 ms) put into our step, against MuJoCo, "
+             f"final head after {doc['meta']['duration_s']:g} s",
+             f"{min(rows_cm):.1f}-{max(rows_cm):.1f} cm apart (our ground: {min(ours_cm):.0f}-{max(ours_cm):.0f} cm)",
+             "-")]
+
+
 def _robustness(doc: dict) -> list[tuple[str, str, str]]:
     named = ", ".join(f"{r['label']}: {', '.join(r['named']) or 'none'}" for r in doc["rows"])
     contact = "stiff (2 ms)" if doc["meta"].get("contact") == "stiff" else "default (20 ms)"
@@ -153,6 +163,7 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix, "diagnose_accuracy": _accuracy,
     "mujoco_robustness": _robustness,
     "mujoco_robustness_stiff": _robustness, "mujoco_fit": _mujoco_fit, "contact_time_constant": _contact_time_constant,
+    "contact_law": _contact_law,
     "coverage": _coverage, "fault_matrix": _faults,
 }
 
