@@ -23,8 +23,10 @@ form, so the two steps differ only in how the rigid body's own dynamics is advan
 
 The implicit equation in ``v*`` is solved by fixed-point iteration to :data:`TOLERANCE`
 (contraction ``~ dt |dC^T v/dv| / |D|``, about 0.15 on COBRA at dt = 1 ms). It starts from the
-velocity form's ``v + dt a`` (Pinocchio's ABA) plus the last step's difference between the two,
-which changes little from one step to the next (8 iterations instead of 12). The step is
+velocity form's ``v + dt a`` (Pinocchio's ABA) plus, when the step continues from the last
+one's result, the last step's difference between the two, which changes little from one step
+to the next (8 iterations instead of 12); a step from any other state starts without it, so a
+rollout does not depend on what the stepper did before. The step is
 first order in the trajectory, like the velocity form; what it adds is a bounded energy error
 in free flight (``tests/test_momentum_step.py``: no growth over 60 s). It costs about 20 times
 the velocity form's compiled loop (``benchmarks/results/sim_speed.md``) and is offered for
@@ -87,11 +89,12 @@ class MomentumStep:
         iteration did not converge in :data:`MAX_ITERATIONS` (the step is far too long).
         """
         pm, data, dt = self._pin, self._data, self.dt
+        continuing = self._q_cached is not None and np.array_equal(q, self._q_cached)
         self._inertia(q)
         p = self._D @ v
         gravity = pin.computeGeneralizedGravity(pm, data, q)
         v_explicit = v + dt * pin.aba(pm, data, q, v, tau)
-        v_star = v_explicit + self._correction
+        v_star = v_explicit + self._correction if continuing else v_explicit
         for iteration in range(1, MAX_ITERATIONS + 1):
             pi = p + dt * (tau + self._velocity_gradient(q, v_star) - gravity)
             v_new = self._D_inv @ pi

@@ -91,7 +91,7 @@ class SimSettings:
         max_speed: generalized speed [m/s or rad/s] beyond which the run is declared diverged.
         scheme: ``"velocity"`` (the step above; batched fits use it) or ``"momentum"``
             (:mod:`integrators.momentum_step`: symplectic Euler on the momentum, bounded energy
-            error, about five times the cost; single rollouts only).
+            error, about 20 times the cost; single rollouts only).
     """
 
     dt: float = 1e-3

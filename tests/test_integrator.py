@@ -15,37 +15,14 @@ measured against the largest kinetic energy reached.
 """
 from __future__ import annotations
 
-from dataclasses import replace
-
 import numpy as np
 import pytest
 
 from cobra_model import design, servo
 from cobra_model.gait import SidewindingGait
-from cobra_model.model import RobotModel
 from cobra_model.parameters import ModelParameters
 from integrators.simulator import ServoGains, SimSettings, SimulationDiverged, Simulator
-
-
-def undamped_params() -> ModelParameters:
-    p = ModelParameters.nominal()
-    return p.with_parameters([replace(p["joint_damping"], value=0.0, min=0.0, log_scale=False)])
-
-
-def energy(model, q, v):
-    return model.kinetic_energy(q, v) + model.potential_energy(q)
-
-
-def free_flight(model, gravity, seconds=10.0, seed=0, dt=1e-3):
-    model = model.without_contacts().with_gravity(gravity)
-    sim = Simulator(model, undamped_params(), SimSettings(dt=dt, control_dt=dt))
-    rng = np.random.default_rng(seed)
-    st = sim.state(model.configuration(rng.uniform(-0.8, 0.8, model.n_joints), np.array([0, 0, 1.0])),
-                   rng.normal(0, 1.0, model.nv))
-    off = np.zeros(model.n_joints, dtype=bool)
-    tr = sim.rollout(st, np.zeros((1, model.n_joints)), seconds, record_every=int(round(0.01 / dt)), torque_on=off)
-    E = np.array([energy(sim.model, q, v) for q, v in zip(tr.q, tr.v)])
-    return sim, tr, E
+from invariants import double_pendulum, energy, free_flight, solo, undamped_params
 
 
 def test_free_flight_without_gravity_energy_bounded_and_momenta_conserved(cobra):
@@ -173,8 +150,7 @@ def test_divergence_names_time_and_place(cobra):
 # --- robots this project did not write (example-robot-data) -------------------------------
 
 def test_double_pendulum_conserves_energy(erd_dir):
-    urdf = erd_dir / "double_pendulum_description" / "urdf" / "double_pendulum.urdf"
-    model = RobotModel.from_urdf(urdf, floating=False).without_contacts()
+    model = double_pendulum(erd_dir).without_contacts()
     sim = Simulator(model, undamped_params(), SimSettings(dt=5e-4, control_dt=5e-4))
     st = sim.state(model.configuration(np.array([1.2, -0.6])), np.zeros(2))
     tr = sim.rollout(st, np.zeros((1, 2)), 10.0, record_every=20, torque_on=np.zeros(2, bool))
@@ -186,9 +162,7 @@ def test_double_pendulum_conserves_energy(erd_dir):
 
 
 def test_solo_dropped_on_ground_settles_passively(erd_dir):
-    urdf = erd_dir / "solo_description" / "robots" / "solo.urdf"
-    feet = [(f"{leg}_FOOT", 0.0175) for leg in ("FL", "FR", "HL", "HR")]
-    model = RobotModel.from_urdf(urdf, floating=True, contact_frames=feet, package_dirs=[str(erd_dir.parent.parent)])
+    model = solo(erd_dir)
     assert len(model.features) >= 4
     params = ModelParameters.nominal().with_values(joint_damping=0.05, armature=1e-3)
     sim = Simulator(model, params, SimSettings(dt=5e-4, control_dt=5e-4))
@@ -201,15 +175,9 @@ def test_solo_dropped_on_ground_settles_passively(erd_dir):
     assert np.abs(tr.v[-1]).max() < 0.5
 
 
-def _solo(erd_dir, feet: bool = True) -> RobotModel:
-    frames = [(f"{leg}_FOOT", 0.0175) for leg in ("FL", "FR", "HL", "HR")] if feet else []
-    return RobotModel.from_urdf(erd_dir / "solo_description" / "robots" / "solo.urdf", floating=True,
-                                contact_frames=frames, package_dirs=[str(erd_dir.parent.parent)])
-
-
 def test_solo_free_flight_energy_bounded_and_momenta_conserved(erd_dir):
     """COBRA's free-flight bounds of the velocity form hold on Solo (another floating robot)."""
-    sim, tr, E = free_flight(_solo(erd_dir, feet=False), np.zeros(3), seconds=5.0)
+    sim, tr, E = free_flight(solo(erd_dir, feet=False), np.zeros(3), seconds=5.0)
     elapsed = tr.t - tr.t[0]
     assert np.all(np.abs(E - E[0]) <= 0.005 * E[0] * elapsed + 1e-9)
     P = np.array([sim.model.momentum(q, v) for q, v in zip(tr.q, tr.v)])
@@ -223,8 +191,7 @@ def test_double_pendulum_with_damping_loses_what_the_damper_dissipates(erd_dir, 
     """Joint damping, no actuation: the energy never rises, and what it loses is the damper's
     work ``int b qdot^2 dt`` (measured within 0.46 % of the initial energy for the velocity form
     over 20 s, 0.33 % for the momentum form; bound 1 %)."""
-    urdf = erd_dir / "double_pendulum_description" / "urdf" / "double_pendulum.urdf"
-    model = RobotModel.from_urdf(urdf, floating=False).without_contacts()
+    model = double_pendulum(erd_dir).without_contacts()
     b, dt = 0.002, 1e-3
     sim = Simulator(model, ModelParameters.nominal().with_values(joint_damping=b),
                     SimSettings(dt=dt, control_dt=dt, scheme=scheme))

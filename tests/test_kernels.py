@@ -9,6 +9,7 @@ from cobra_model.model import RobotModel
 from cobra_model.parameters import ModelParameters
 from integrators import kernels as K
 from integrators.simulator import Simulator
+from invariants import double_pendulum, solo
 
 
 def _random_state(model, rng, z=0.02):
@@ -142,13 +143,10 @@ def test_unsupported_joint_is_reported(erd_dir):
 def test_ground_law_pointwise_on_robots_this_project_did_not_write(erd_dir):
     """The same invariants on Solo (four spherical feet, floating) and on the double pendulum
     with point contacts at its joints (fixed base at z = 0, so its links reach below the ground)."""
-    feet = [(f"{leg}_FOOT", 0.0175) for leg in ("FL", "FR", "HL", "HR")]
-    solo = RobotModel.from_urdf(erd_dir / "solo_description" / "robots" / "solo.urdf", floating=True,
-                                contact_frames=feet, package_dirs=[str(erd_dir.parent.parent)])
-    pendulum = RobotModel.from_urdf(erd_dir / "double_pendulum_description" / "urdf" / "double_pendulum.urdf",
-                                    floating=False, contact_frames=[("link1", 0.02), ("link2", 0.02)])
-    _assert_ground_invariants(Simulator(solo), np.random.default_rng(9), 100,
-                              lambda rng: _random_state(solo, rng, z=rng.uniform(0.15, 0.3)))
+    quadruped = solo(erd_dir)
+    pendulum = double_pendulum(erd_dir, contact_frames=(("link1", 0.02), ("link2", 0.02)))
+    _assert_ground_invariants(Simulator(quadruped), np.random.default_rng(9), 100,
+                              lambda rng: _random_state(quadruped, rng, z=rng.uniform(0.15, 0.3)))
     # near horizontal, the point at the second joint is within a centimetre of the ground, above or below
     _assert_ground_invariants(Simulator(pendulum), np.random.default_rng(10), 100,
                               lambda rng: (np.array([rng.uniform(1.65, 1.85), rng.uniform(-0.2, 0.2)]),
