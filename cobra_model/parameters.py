@@ -125,34 +125,7 @@ NOMINAL: tuple[Parameter, ...] = (
                   "cylinder rim, the module radius a hemispherical (capsule) end"),
 )
 
-#: Parameters of the physical effects the nominal model lacks (``sysid.discrepancy.effects``), each at the
-#: value where it is inactive: the one place those values live. The simulator reads an effect's
-#: parameter from a set that has it and this inactive value otherwise (:meth:`ModelParameters.get`).
-EFFECT_PARAMETERS: tuple[Parameter, ...] = (
-    Parameter("joint_coulomb", "N m", 0.0, 0.0, 3.0, group="joint_coulomb_friction",
-              doc="Coulomb friction torque of the gearbox"),
-    Parameter("backlash", "rad", 0.0, 0.0, 0.2, group="backlash", doc="half-width of the transmission dead zone"),
-    Parameter("actuator_delay", "s", 0.0, 0.0, 0.2, group="actuator_delay", doc="command / bus latency"),
-    # inactive at the stall torque: the motor cannot exceed it at the nominal constant, and the
-    # URDF's effort limit (which MuJoCo enforces) is the same 9.9 N m
-    Parameter("torque_limit", "N m", servo.SERVO_STALL_TORQUE_NM, 0.5, servo.SERVO_STALL_TORQUE_NM,
-              group="torque_saturation", doc="motor torque limit (voltage/current)"),
-    Parameter("lateral_friction_ratio", "1", 1.0, 0.2, 5.0, log_scale=True, group="anisotropic_ground_friction",
-              doc="sideways / along-body friction ratio"),
-    Parameter("encoder_offset", "rad", 0.0, -0.2, 0.2, group="encoder_offset", doc="encoder zero offset (all joints)"),
-    Parameter("link_mass_error", "kg", 0.0, -0.5, 2.0, group="link_mass_error",
-              doc="mass added to the head module (payload)"),
-)
-
-_FALLBACK: dict[str, Parameter] = {p.name: p for p in NOMINAL + EFFECT_PARAMETERS}
-
-
-def effect_parameter(name: str) -> Parameter:
-    """The effect parameter ``name`` of :data:`EFFECT_PARAMETERS`, at its inactive value."""
-    for p in EFFECT_PARAMETERS:
-        if p.name == name:
-            return p
-    raise InputError(f"unknown effect parameter {name!r}; known: {', '.join(p.name for p in EFFECT_PARAMETERS)}")
+_NOMINAL_BY_NAME: dict[str, Parameter] = {p.name: p for p in NOMINAL}
 
 #: Parameters that may be expanded to one value per joint.
 PER_JOINT_CAPABLE: tuple[str, ...] = ("armature", "joint_damping", "motor_km")
@@ -245,24 +218,26 @@ class ModelParameters:
 
     def get(self, name: str, default: float | None = None) -> float:
         """Value of ``name`` if the set has it (e.g. an added effect's parameter), else ``default``,
-        else the inactive value of an effect parameter (:data:`EFFECT_PARAMETERS`) or the
-        nominal value (a parameter file written before that parameter existed).
+        else the nominal value (a parameter file written before that parameter existed).
+
+        The value at which an effect's parameter is inactive belongs to the physics that reads it
+        (``integrators.simulator.effect_parameter``), which passes it as ``default``.
 
         Raises:
-            InputError: for a name that is none of these, without a default.
+            InputError: for a name that is neither, without a default.
         """
         if name in self._index:
             return self._params[self._index[name]].value
         if default is not None:
             return default
-        if name in _FALLBACK:
-            return _FALLBACK[name].value
+        if name in _NOMINAL_BY_NAME:
+            return _NOMINAL_BY_NAME[name].value
         return self.value(name)  # raises, naming the known parameters
 
-    def per_joint(self, name: str) -> np.ndarray:
+    def per_joint(self, name: str, default: float | None = None) -> np.ndarray:
         """(11,) values of a per-joint capable parameter: ``name_k`` where present, else ``name``
-        (see :meth:`get`)."""
-        shared = self.get(name)
+        (see :meth:`get`, which ``default`` is passed to)."""
+        shared = self.get(name, default)
         return np.array([self.get(f"{name}_{k}", shared) for k in range(1, design.NUM_JOINTS + 1)])
 
     # -- derived sets -------------------------------------------------------------------------

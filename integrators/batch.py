@@ -19,12 +19,12 @@ from cobra_model.errors import InputError
 from cobra_model.model import RobotModel
 from cobra_model.parameters import ModelParameters
 from integrators import kernels as K
-from integrators.simulator import SimSettings, SimState, Simulator
+from integrators.simulator import SimSettings, SimState, Simulator, effect_value
 
 
 def model_key(params: ModelParameters) -> tuple:
     """What of ``params`` is part of the Pinocchio model (environments with equal keys share one)."""
-    return tuple(params.per_joint("armature")), params.get("link_mass_error")
+    return tuple(params.per_joint("armature")), effect_value(params, "link_mass_error")
 
 
 class BatchSimulator:

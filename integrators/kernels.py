@@ -17,7 +17,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit, prange
 
-from cobra_model.servo import PULSES_PER_REV, PWM_FULL_SCALE
+from cobra_model.parameters import Parameter
+from cobra_model.servo import PULSES_PER_REV, PWM_FULL_SCALE, SERVO_STALL_TORQUE_NM
 
 # Indices into the ground parameter array ``ground``.
 G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL, G_CONE, G_ROUND = range(10)
@@ -27,9 +28,26 @@ N_GROUND = 10
 A_DAMPING, A_RKM, A_COULOMB, A_TAU_MAX, A_COULOMB_EPS, A_ENC_OFFSET, A_BACKLASH = range(7)
 N_ACT = 7
 
+#: The parameters of the effects these kernels model beyond the nominal table
+#: (``sysid.discrepancy.effects`` names them): unit, bounds and the value at which the kernel's
+#: term vanishes, the one place each lives. A parameter set without one simulates it at that value.
+EFFECT_PARAMETERS: tuple[Parameter, ...] = (
+    Parameter("joint_coulomb", "N m", 0.0, 0.0, 3.0, group="joint_coulomb_friction",
+              doc="Coulomb friction torque of the gearbox"),
+    Parameter("backlash", "rad", 0.0, 0.0, 0.2, group="backlash", doc="half-width of the transmission dead zone"),
+    # inactive at the stall torque: the motor cannot exceed it at the nominal constant, and the
+    # URDF's effort limit (which MuJoCo enforces) is the same 9.9 N m
+    Parameter("torque_limit", "N m", SERVO_STALL_TORQUE_NM, 0.5, SERVO_STALL_TORQUE_NM,
+              group="torque_saturation", doc="motor torque limit (voltage/current)"),
+    Parameter("lateral_friction_ratio", "1", 1.0, 0.2, 5.0, log_scale=True, group="anisotropic_ground_friction",
+              doc="sideways / along-body friction ratio"),
+    Parameter("encoder_offset", "rad", 0.0, -0.2, 0.2, group="encoder_offset", doc="encoder zero offset (all joints)"),
+)
+
 #: Where a parameter of a parameter set lands in ``ground`` (by name: the simulator packs every
-#: name listed here with :meth:`ModelParameters.get`, so an effect parameter the set lacks
-#: enters at its inactive value). An effect that acts in these kernels adds its slot here.
+#: name listed here, an effect parameter the set lacks at its value in :data:`EFFECT_PARAMETERS`).
+#: A new effect that acts in these kernels adds its parameter there, its slot here and its
+#: physics in the kernel that reads the slot.
 GROUND_PARAMETERS: dict[str, int] = {
     "k1": G_K1, "k2": G_K2, "mu_c": G_MU_C, "mu_s": G_MU_S, "mu_v": G_MU_V, "v_s": G_V_S,
     "lateral_friction_ratio": G_LATERAL, "friction_cone": G_CONE, "contact_rounding": G_ROUND,

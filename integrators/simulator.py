@@ -27,11 +27,12 @@ Model effects beyond the nominal parameter table enter through parameters of the
 (a dead zone on the position loop's error),
 ``encoder_offset`` [rad] (the encoder reads ``q + offset``), ``actuator_delay`` [s] (commands
 reach the servo late) and ``link_mass_error`` [kg] (added to the root module). A set without
-one of them simulates it at its inactive value, which lives only in
-``cobra_model.parameters.EFFECT_PARAMETERS`` (see ``sysid.discrepancy.effects``). Where a
-parameter lands in the kernels' arrays is the kernels' own table
-(``integrators.kernels.GROUND_PARAMETERS``, ``ACTUATOR_PARAMETERS``); the simulator packs by it,
-so an effect that acts in the kernels is added there and nowhere in this module.
+one of them simulates it at its inactive value. Each parameter (unit, bounds, inactive value)
+is defined beside the physics that reads it: in the kernels' :data:`integrators.kernels.EFFECT_PARAMETERS`
+with its slot in ``GROUND_PARAMETERS`` or ``ACTUATOR_PARAMETERS`` (the simulator packs by
+those tables, so an effect that acts in the kernels is added there and nowhere in this module),
+or in :data:`STEP_EFFECT_PARAMETERS` here for the two that act on the commands and on the
+rigid-body model; :func:`effect_parameter` looks up either. ``sysid.discrepancy.effects`` names them.
 """
 from __future__ import annotations
 
@@ -44,10 +45,39 @@ import pinocchio as pin
 from cobra_model import servo
 from cobra_model.servo import SERVO_GEAR_RATIO
 from cobra_model.model import RobotModel
-from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters
+from cobra_model.errors import InputError
+from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters, Parameter
 from integrators import kernels as K
 from integrators import stability
 from integrators.momentum_step import MomentumStep
+
+
+#: The effects that act in this module rather than in the kernels: on the command stream and on
+#: the rigid-body model (see the module docstring).
+STEP_EFFECT_PARAMETERS: tuple[Parameter, ...] = (
+    Parameter("actuator_delay", "s", 0.0, 0.0, 0.2, group="actuator_delay", doc="command / bus latency"),
+    Parameter("link_mass_error", "kg", 0.0, -0.5, 2.0, group="link_mass_error",
+              doc="mass added to the head module (payload)"),
+)
+_EFFECT_PARAMETERS: dict[str, Parameter] = {p.name: p for p in K.EFFECT_PARAMETERS + STEP_EFFECT_PARAMETERS}
+
+
+def effect_parameter(name: str) -> Parameter:
+    """The parameter of a modelled effect (the kernels' or this module's), at its inactive value.
+
+    Raises:
+        InputError: for a name that is no effect parameter, listing the known ones.
+    """
+    if name not in _EFFECT_PARAMETERS:
+        raise InputError(f"unknown effect parameter {name!r}; known: {', '.join(_EFFECT_PARAMETERS)}")
+    return _EFFECT_PARAMETERS[name]
+
+
+def effect_value(params: ModelParameters, name: str) -> float:
+    """The value of parameter ``name`` in ``params``: an effect's parameter the set lacks at its
+    inactive value (:func:`effect_parameter`), any other the set's or nominal value."""
+    inactive = _EFFECT_PARAMETERS.get(name)
+    return params.get(name, None if inactive is None else inactive.value)
 
 
 class SimulationDiverged(RuntimeError):
@@ -181,15 +211,18 @@ class Simulator:
         self.settings = settings if settings is not None else SimSettings()
         p, s = self.params, self.settings
         n = model.n_joints
-        per_joint = lambda name: p.per_joint(name)[:n]  # noqa: E731
-        if p.get("link_mass_error"):
+        def per_joint(name: str) -> np.ndarray:
+            inactive = _EFFECT_PARAMETERS.get(name)
+            return p.per_joint(name, None if inactive is None else inactive.value)[:n]
+
+        if effect_value(p, "link_mass_error"):
             model = model.with_link_mass(model.body_names[0], p.value("link_mass_error"))
         self.model = model.with_armature(per_joint("armature"))
         self._pin = self.model.pin_model
         self._data = self._pin.createData()
         ground = np.zeros(K.N_GROUND)
         for name, slot in K.GROUND_PARAMETERS.items():
-            ground[slot] = p.get(name)
+            ground[slot] = effect_value(p, name)
         ground[K.G_EPS] = s.sgn_eps
         self.ground = ground
         act = np.zeros((n, K.N_ACT))
@@ -198,7 +231,7 @@ class Simulator:
         act[:, K.A_RKM] = SERVO_GEAR_RATIO * per_joint("motor_km")
         act[:, K.A_COULOMB_EPS] = s.joint_coulomb_eps
         self.act = act
-        self.delay_s = p.get("actuator_delay")
+        self.delay_s = effect_value(p, "actuator_delay")
         g = s.gains
         scal = np.zeros(K.N_SCAL)
         scal[K.S_DT], scal[K.S_VOLTAGE], scal[K.S_RESISTANCE] = s.dt, s.voltage, WINDING_RESISTANCE_OHM

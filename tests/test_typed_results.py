@@ -7,7 +7,11 @@ import numpy as np
 import pytest
 
 from cobra_model.errors import InputError
-from cobra_model.parameters import EFFECT_PARAMETERS, ModelParameters, effect_parameter
+from cobra_model.model import CobraModel
+from cobra_model.parameters import ModelParameters
+from integrators import kernels as K
+from integrators.simulator import STEP_EFFECT_PARAMETERS, Simulator, effect_parameter, effect_value
+from sysid.discrepancy.effects import EFFECTS
 from sysid.discrepancy.diagnose import NamedEffect, StructuralDifference
 from sysid.identification.intervals import Whiteness
 from sysid.identification.lsq import FitResult, FitStatus, IterationLog, ParameterReport
@@ -64,14 +68,27 @@ def test_fit_result_round_trip():
     assert fit.to_json()["intervals"] == {"mu_c": [0.24, 0.26]}
 
 
-def test_an_effect_parameter_a_set_lacks_reads_as_inactive():
+def test_an_effect_parameter_a_set_lacks_is_simulated_at_its_inactive_value():
     nominal = ModelParameters.nominal()
-    for p in EFFECT_PARAMETERS:
-        assert nominal.get(p.name) == p.value
-    assert np.all(nominal.per_joint("torque_limit") == 9.9)   # the stall torque: no limit below it
-    assert nominal.get("joint_coulomb", 0.2) == 0.2            # an explicit default still wins
-    with pytest.raises(Exception, match="unknown parameter 'no_such'"):
-        nominal.get("no_such")
+    for p in K.EFFECT_PARAMETERS + STEP_EFFECT_PARAMETERS:
+        assert effect_value(nominal, p.name) == p.value
+    sim = Simulator(CobraModel.load(), nominal)
+    assert np.all(sim.act[:, K.A_TAU_MAX] == 9.9)        # the stall torque: no limit below it
+    assert np.all(sim.act[:, K.A_BACKLASH] == 0.0) and sim.delay_s == 0.0
+    assert sim.ground[K.G_LATERAL] == 1.0
+    assert nominal.get("joint_coulomb", 0.2) == 0.2      # an explicit default still wins
+    with pytest.raises(InputError, match="unknown parameter 'joint_coulomb'"):
+        nominal.get("joint_coulomb")                     # the parameter table has no effect defaults
     assert effect_parameter("backlash").value == 0.0
     with pytest.raises(InputError, match="unknown effect parameter 'armature'; known: joint_coulomb"):
         effect_parameter("armature")
+
+
+def test_each_effect_reads_the_parameter_its_physics_defines():
+    """One home per effect parameter: the library's effect holds the object the simulator packs
+    by, and every kernel effect parameter has a slot in the kernels' tables."""
+    for e in EFFECTS:
+        assert e.parameter is effect_parameter(e.parameter.name), e.name
+    slots = set(K.GROUND_PARAMETERS) | set(K.ACTUATOR_PARAMETERS)
+    for p in K.EFFECT_PARAMETERS:
+        assert p.name in slots, p.name

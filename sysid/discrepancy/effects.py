@@ -7,8 +7,8 @@ enters the dynamics or the measurement, and the residual signature it predicts; 
 (``get_feature_names``) and adds their parameters to a parameter set (``transform``).
 
 Every effect is already part of the simulator (``integrators.simulator``), inactive by default:
-its parameter, with the value at which it is inactive, is in
-:data:`cobra_model.parameters.EFFECT_PARAMETERS`, which the simulator reads when a parameter set
+its parameter, with the value at which it is inactive, is defined beside the physics that reads
+it (``integrators.simulator.effect_parameter``), which the simulator uses when a parameter set
 lacks it; adding the parameter to a :class:`ModelParameters` switches the effect on:
 
 | effect | parameter | enters | plausible on COBRA |
@@ -21,10 +21,10 @@ lacks it; adding the parameter to a :class:`ModelParameters` switches the effect
 | ``encoder_offset`` | ``encoder_offset`` [rad] | every encoder reads ``q + offset`` (the loop regulates the reading) | -0.1-0.1 |
 | ``link_mass_error`` | ``link_mass_error`` [kg] | mass added to (or removed from) the head module, a payload | -0.3-1.2 |
 
-Adding an effect that acts in the simulator's kernels: its parameter (unit, bounds, inactive
-value) in ``EFFECT_PARAMETERS``, its :class:`Effect` here, its slot in the kernels' table
-(``integrators.kernels.GROUND_PARAMETERS`` or ``ACTUATOR_PARAMETERS``) and its physics in the
-kernel that reads that slot; the simulator and the batch pack the arrays from that table.
+Adding an effect that acts in the simulator's kernels touches two files: ``integrators/kernels.py``
+(its parameter with unit, bounds and inactive value in ``EFFECT_PARAMETERS``, its slot in
+``GROUND_PARAMETERS`` or ``ACTUATOR_PARAMETERS``, its physics in the kernel that reads the slot;
+the simulator and the batch pack the arrays from those tables) and its :class:`Effect` here.
 
 A fitted value outside the last column (the reasons are beside each :class:`Effect` below), or
 on a bound, is no physical value of the effect: the workflow reports it as a proxy for a
@@ -37,7 +37,8 @@ from typing import Iterable, Iterator, Mapping
 
 from cobra_model.servo import SERVO_STALL_TORQUE_NM
 from cobra_model.errors import InputError
-from cobra_model.parameters import ModelParameters, Parameter, effect_parameter
+from cobra_model.parameters import ModelParameters, Parameter
+from integrators.simulator import effect_parameter
 
 
 @dataclass(frozen=True)

@@ -30,14 +30,14 @@ import numpy as np
 from cobra_model.errors import InputError
 from cobra_model.gait import PAPER_FREQUENCIES_HZ, SidewindingGait
 from cobra_model.model import CobraModel
-from cobra_model.parameters import ModelParameters, effect_parameter
+from cobra_model.parameters import ModelParameters
 from cobra_model.resample import interpolate_quaternions, interpolate_rows
 from cobra_model.run import Run
 from cobra_model.run_files import write_run
 from cobra_model.servo import RAD_PER_PULSE
 from cobra_model.shipped import shipped_path
 from integrators.simulate import TRACKED_BODIES
-from integrators.simulator import Simulator
+from integrators.simulator import Simulator, effect_parameter
 
 #: ``data/reference``, as installed (package data ``sysid.reference``).
 DATA_DIR = shipped_path("sysid.reference")

@@ -37,7 +37,7 @@ from cobra_model.run import Run
 from integrators import kernels as K
 from integrators.batch import BatchSimulator
 from integrators.simulate import InitialPose, StartObservation, command_ticks
-from integrators.simulator import SimSettings, SimState, delay_commands
+from integrators.simulator import SimSettings, SimState, delay_commands, effect_value
 from sysid.identification.executor import Executor, LocalExecutor
 
 
@@ -148,13 +148,13 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
     # one extra record period so that every sample time lies inside the recorded span
     duration = max(tg.duration for tg in targets) + every * spec.settings.dt
     # one goal sequence per (command delay, run): environments share a sequence, not a batch
-    delays = list(dict.fromkeys(p.get("actuator_delay") for p in sets))
+    delays = list(dict.fromkeys(effect_value(p, "actuator_delay") for p in sets))
     goals = np.empty((n_ticks, len(delays) * n_runs, targets[0].ticks.shape[1]))
     for d, delay in enumerate(delays):
         for r, tg in enumerate(targets):
             ticks = delay_commands(tg.ticks, delay, spec.settings.control_dt)
             goals[:, d * n_runs + r] = ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
-    goal_index = np.array([delays.index(p.get("actuator_delay")) * n_runs + r
+    goal_index = np.array([delays.index(effect_value(p, "actuator_delay")) * n_runs + r
                            for p in sets for r in range(n_runs)])
     batch = BatchSimulator(model, [p for p in sets for _ in targets], spec.settings, threads=spec.threads)
     # a run's rest state depends only on its encoder offsets and the ends' rounding: made once each
