@@ -18,25 +18,31 @@ Configurations (the robot's parameter error ``TRUTH`` in all; :mod:`sysid.genera
 Why the solref column matters: MuJoCo's contact time constant changes the robot's path by more
 than the 5 cm bound (``benchmarks/contact_time_constant.py``: over 6 s at 0.65 Hz the head ends
 0.40 m apart between 2 ms and 40 ms), and our compliant ground reaches MuJoCo's path only in
-MuJoCo's stiff limit; no parameter of ours moves the path the way MuJoCo's time constant does.
+MuJoCo's stiff limit. The soft-constraint contact law follows MuJoCo's soft contact
+(``benchmarks/contact_law.py``), so the base fit chooses between the two laws
+(:func:`sysid.identification.contact_choice.choose_contact_law`): each is fitted with its own
+ground parameters free (``LAW_FREE``) and the one with the lower objective cost on three
+validation runs (same gaits, heading ``h + 0.5 rad``, their own noise) is kept; the held-out runs
+that the table reports are not used to choose.
 
 Per configuration x seed x heading ``h``: three training runs (0.35/0.5/0.65 Hz,
 ``--train-duration`` s, heading ``h``) and three held-out runs (same gaits,
 ``--holdout-duration`` s, heading ``h + 1 rad``), measured like the reference dataset (50 Hz
-quantised encoders, mocap noise and dropouts; noise drawn from the seed). The fit is
-``cobra fit --method lsq``'s (:func:`sysid.identification.lsq.fit_lsq`) from the nominal model with
-``FREE`` free (or ``--free``). Per held-out gait the table gives the final head error of the
-nominal and the fitted model and the fitted model's joint RMSE against the floor
+quantised encoders, mocap noise and dropouts; noise drawn from the seed). Each fit is
+``cobra fit --method lsq``'s (:func:`sysid.identification.lsq.fit_lsq`) from the nominal model.
+Per held-out gait the table gives the final head error of the nominal model, of each law's fit
+and of the chosen one, and the chosen fit's joint RMSE against the floor
 (``2 pi / 4096 / sqrt 12`` [rad]: the encoders' quantisation, the only noise on the joint log;
 its timing jitter is logged). Interval coverage counts, over all fits, how often the 95 %
-interval of a parameter with a MuJoCo counterpart holds the MuJoCo value (``joint_damping``:
-joint ``damping``; ``mu_c``: sliding friction; ``armature``: joint ``armature``).
+interval of a parameter of the chosen fit with a MuJoCo counterpart holds the MuJoCo value
+(``joint_damping``: joint ``damping``; ``mu_c``: sliding friction; ``contact_time_constant``:
+``solref[0]``, for the soft-constraint law).
 
 Seeds 7 and 5 (heading 0.3 rad; twin and stiff) were used while developing; the table reports seeds 101-103.
 Progress goes to stderr; results to ``benchmarks/results/mujoco_fit.{json,md}``.
 
 Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--seeds 101,102,103]
-[--headings 0.3,2.0] [--iterations 8]``.
+[--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint]``.
 """
 from __future__ import annotations
 
@@ -53,23 +59,24 @@ from cobra_model import CobraModel, ModelParameters
 from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulate import simulate_like
+from integrators.simulator import SimSettings
 from cobra_model.servo import PULSES_PER_REV
 from sysid.generators.dataset import RunPlan
+from sysid.identification.contact_choice import LAW_FREE, choose_contact_law
 from sysid.identification.lsq import fit_lsq
 from sysid.gap.metrics import compare_runs
 from sysid.generators.mujoco_recording import describe, record_mujoco, stiff_contact, twin_options
-from sysid.identification.objective import Objective, Weights
 
 #: The robot's parameter error (as in benchmarks/mujoco_robustness.py).
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
-#: The base fit's free parameters: the actuator error's two, every ground parameter, and the
-#: shape of the friction limit and of the modules' ends (frozen at the paper's law by default).
-FREE = ["joint_damping", "motor_km", "k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", "friction_cone", "contact_rounding"]
 GAITS_HZ = (0.35, 0.5, 0.65)
 DEV_SEEDS = (5, 7)
 EVAL_SEEDS = (101, 102, 103)
 HEADINGS_RAD = (0.3, 2.0)
 HOLDOUT_TURN_RAD = 1.0
+VALIDATION_TURN_RAD = 0.5
+#: Added to a case's seed for its validation runs' noise (the training and held-out runs keep theirs).
+VALIDATION_SEED_OFFSET = 10_000
 #: Joint-angle noise floor [rad]: the RMS of the encoders' rounding error.
 JOINT_FLOOR_RAD = 2 * np.pi / PULSES_PER_REV / np.sqrt(12)
 HEAD_BOUND_M = 0.05
@@ -90,7 +97,8 @@ def configurations(truth: ModelParameters) -> dict[str, TwinOptions]:
 
 def mujoco_truth(options: TwinOptions) -> dict[str, float]:
     """Our parameters' values in the MuJoCo model (those with a counterpart)."""
-    return {"armature": options.armature, "joint_damping": options.damping, "mu_c": options.friction[0]}
+    return {"armature": options.armature, "joint_damping": options.damping, "mu_c": options.friction[0],
+            "contact_time_constant": options.solref[0]}
 
 
 def record_case(options: TwinOptions, truth: ModelParameters, seed: int, heading: float, train_s: float,
@@ -104,36 +112,53 @@ def record_case(options: TwinOptions, truth: ModelParameters, seed: int, heading
     return train, hold
 
 
+def record_validation(options: TwinOptions, truth: ModelParameters, seed: int, heading: float, train_s: float,
+                      model: CobraModel) -> list[Run]:
+    """Three validation runs at ``heading + VALIDATION_TURN_RAD``, with their own noise: what
+    chooses the contact law."""
+    rng = np.random.default_rng(seed + VALIDATION_SEED_OFFSET)
+    return [record_mujoco(RunPlan(f"valid_{f}", f, train_s, (-0.5, 0.5), heading + VALIDATION_TURN_RAD, "validation"),
+                          options, rng, model, truth) for f in GAITS_HZ]
+
+
 def run_case(config: str, options: TwinOptions, seed: int, heading: float, args: argparse.Namespace,
-             start: ModelParameters, model: CobraModel, progress: Callable[[str], None]) -> list[dict]:
-    """Fit one case and evaluate it on its held-out runs: one row per held-out gait."""
+             laws: list[str], model: CobraModel, progress: Callable[[str], None]) -> list[dict]:
+    """Fit both contact laws on one case, choose on its validation runs, evaluate on its held-out
+    runs: one row per held-out gait."""
     truth = ModelParameters.nominal().with_values(**TRUTH)
-    progress("recording 6 MuJoCo runs")
+    start = ModelParameters.nominal()
+    progress("recording 9 MuJoCo runs")
     train, hold = record_case(options, truth, seed, heading, args.train_duration, args.holdout_duration, model)
-    progress(f"fitting {len(start.free_names)} parameters on 3 runs of {args.train_duration:g} s")
-    t0 = time.perf_counter()
-    fit = fit_lsq(Objective(train, start, Weights()), max_iterations=args.iterations, budget_seconds=args.budget,
-                  progress=lambda i, c, s: progress(f"  iteration {i}: cost {c:.4g} ({s:.0f} s)"))
-    wall = time.perf_counter() - t0
+    valid = record_validation(options, truth, seed, heading, args.train_duration, model)
+    choice = choose_contact_law(
+        train, valid, start, laws=laws, progress=progress,
+        fit=lambda objective: fit_lsq(objective, max_iterations=args.iterations, budget_seconds=args.budget,
+                                      progress=lambda i, c, s: progress(f"  iteration {i}: cost {c:.4g} ({s:.0f} s)")))
+    best = choice.best.fit
     counterpart = mujoco_truth(options)
     intervals = {r.name: {"value": r.value, "ci": [r.ci_low, r.ci_high], "truth": counterpart[r.name],
                           "holds": bool(r.ci_low <= counterpart[r.name] <= r.ci_high)}
-                 for r in fit.report if r.name in counterpart}
-    at_bound = [r.name for r in fit.report if r.at_bound]
+                 for r in best.report if r.name in counterpart}
     rows = []
     for run in hold:
         before = compare_runs(run, simulate_like(run, params=start))
-        after = compare_runs(run, simulate_like(run, params=fit.params))
+        per_law = {f.law: compare_runs(run, simulate_like(run, params=f.fit.params, settings=SimSettings(contact=f.law)))
+                   for f in choice.fits}
+        after = per_law[choice.chosen]
         joint = after.mean_joint_rmse
         rows.append({
             "config": config, "seed": seed, "heading_rad": heading, "gait_hz": run.gait_frequency_hz,
-            "head_final_m_nominal": before.head.final, "head_final_m_fitted": after.head.final,
-            "joint_rmse_rad_nominal": before.mean_joint_rmse, "joint_rmse_rad_fitted": joint,
+            "head_final_m_nominal": before.head.final, "joint_rmse_rad_nominal": before.mean_joint_rmse,
+            "head_final_m_by_law": {law: gap.head.final for law, gap in per_law.items()},
+            "joint_rmse_rad_by_law": {law: gap.mean_joint_rmse for law, gap in per_law.items()},
+            "chosen_law": choice.chosen, "head_final_m_fitted": after.head.final, "joint_rmse_rad_fitted": joint,
             "joint_rmse_over_floor": joint / JOINT_FLOOR_RAD,
             "meets_head_bound": bool(after.head.final <= HEAD_BOUND_M),
             "meets_joint_bound": bool(joint <= JOINT_BOUND_FACTOR * JOINT_FLOOR_RAD),
-            "fit_status": fit.status.value, "fit_seconds": wall, "at_bound": at_bound, "intervals": intervals,
-            "fitted": {n: fit.params.value(n) for n in fit.params.free_names},
+            "choice": choice.to_json(), "fit_status": best.status.value,
+            "fit_seconds": sum(f.fit.seconds for f in choice.fits),
+            "at_bound": [r.name for r in best.report if r.at_bound], "intervals": intervals,
+            "fitted": {n: best.params.value(n) for n in best.params.free_names},
         })
     return rows
 
@@ -145,25 +170,34 @@ def markdown(rows: list[dict], meta: dict) -> str:
              f"Seeds {meta['seeds']} (development seed {list(DEV_SEEDS)} not reported), headings "
              f"{meta['headings_rad']} rad; training runs {meta['train_duration_s']:g} s, held-out runs "
              f"{meta['holdout_duration_s']:g} s turned by {HOLDOUT_TURN_RAD:g} rad; "
-             f"{meta['iterations_per_stage']} Jacobians per stage at most; free: "
-             f"{', '.join(meta['free'])}. Bounds: held-out final head error <= {HEAD_BOUND_M * 100:g} cm, "
-             f"joint RMSE <= {JOINT_BOUND_FACTOR:g} x floor ({JOINT_FLOOR_RAD * 1e3:.3f} mrad).", "",
-             "| config | seed | heading [rad] | gait [Hz] | head final, nominal -> fitted [m] | "
-             "joint RMSE fitted [mrad] (x floor) | fit [s] | at a bound |",
-             "|---|---:|---:|---:|---|---|---:|---|"]
+             f"{meta['iterations_per_stage']} Jacobians per stage at most; each contact law fitted with its "
+             f"own free parameters ({'; '.join(f'{law}: ' + ', '.join(free) for law, free in meta['free'].items())}), "
+             "the law with the lower cost on three validation runs chosen. Bounds: held-out final head error "
+             f"<= {HEAD_BOUND_M * 100:g} cm, joint RMSE <= {JOINT_BOUND_FACTOR:g} x floor "
+             f"({JOINT_FLOOR_RAD * 1e3:.3f} mrad).", "",
+             "| config | seed | heading [rad] | gait [Hz] | head final: nominal [m] | "
+             + " | ".join(f"{law} fitted [m]" for law in meta["laws"])
+             + " | chosen | joint RMSE chosen [mrad] (x floor) | fits [s] | at a bound (chosen) |",
+             "|---|---:|---:|---:|---:|" + "---:|" * len(meta["laws"]) + "---|---|---:|---|"]
     for r in rows:
         lines.append(f"| {r['config']} | {r['seed']} | {r['heading_rad']:g} | {r['gait_hz']:g} | "
-                     f"{r['head_final_m_nominal']:.3f} -> {r['head_final_m_fitted']:.3f} | "
-                     f"{r['joint_rmse_rad_fitted'] * 1e3:.2f} ({r['joint_rmse_over_floor']:.1f}) | "
+                     f"{r['head_final_m_nominal']:.3f} | "
+                     + " | ".join(f"{r['head_final_m_by_law'][law]:.3f}" for law in meta["laws"])
+                     + f" | {r['chosen_law']} | {r['joint_rmse_rad_fitted'] * 1e3:.2f} ({r['joint_rmse_over_floor']:.1f}) | "
                      f"{r['fit_seconds']:.0f} | {', '.join(r['at_bound']) or '-'} |")
-    lines += ["", "| config | gaits within 5 cm | joint RMSE within bound | median head final, fitted [m] | "
-              "worst [m] |", "|---|---|---|---:|---:|"]
+    lines += ["", "| config | gaits within 5 cm (chosen) | "
+              + " | ".join(f"within 5 cm ({law} always)" for law in meta["laws"])
+              + " | law chosen | joint RMSE within bound | median head final, chosen [m] | worst [m] |",
+              "|---|---|" + "---|" * len(meta["laws"]) + "---|---|---:|---:|"]
     for config in dict.fromkeys(r["config"] for r in rows):
         sub = [r for r in rows if r["config"] == config]
         heads = [r["head_final_m_fitted"] for r in sub]
-        lines.append(f"| {config} | {sum(r['meets_head_bound'] for r in sub)}/{len(sub)} | "
-                     f"{sum(r['meets_joint_bound'] for r in sub)}/{len(sub)} | {np.median(heads):.3f} | "
-                     f"{max(heads):.3f} |")
+        by_law = [f"{sum(r['head_final_m_by_law'][law] <= HEAD_BOUND_M for r in sub)}/{len(sub)}" for law in meta["laws"]]
+        chosen = ", ".join(f"{law} {sum(r['chosen_law'] == law for r in sub) // len(GAITS_HZ)}"
+                           for law in meta["laws"])
+        lines.append(f"| {config} | {sum(r['meets_head_bound'] for r in sub)}/{len(sub)} | " + " | ".join(by_law)
+                     + f" | {chosen} | {sum(r['meets_joint_bound'] for r in sub)}/{len(sub)} | "
+                     f"{np.median(heads):.3f} | {max(heads):.3f} |")
     fits = {(r["config"], r["seed"], r["heading_rad"]): r["intervals"] for r in rows}
     names = sorted({n for iv in fits.values() for n in iv})
     lines += ["", "95 % interval coverage of the MuJoCo value, over the fits:", "",
@@ -184,7 +218,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--headings", default=",".join(map(str, HEADINGS_RAD)), help="training headings [rad]")
     parser.add_argument("--train-duration", type=float, default=6.0, help="training run length [s] (default 6)")
     parser.add_argument("--holdout-duration", type=float, default=8.0, help="held-out run length [s] (default 8)")
-    parser.add_argument("--free", default=",".join(FREE), help="comma-separated free parameters (default: FREE)")
+    parser.add_argument("--laws", default=",".join(LAW_FREE), help=f"contact laws to fit and choose from "
+                                                                       f"(default {','.join(LAW_FREE)})")
     parser.add_argument("--iterations", type=int, default=8,
                         help="Jacobians per stage of the horizon continuation (default 8)")
     parser.add_argument("--budget", type=float, default=None,
@@ -199,7 +234,9 @@ def main(argv: list[str] | None = None) -> int:
     if any(s in DEV_SEEDS for s in seeds):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     headings = [float(h) for h in args.headings.split(",")]
-    start = ModelParameters.nominal().with_frozen(free=[n.strip() for n in args.free.split(",") if n.strip()])
+    laws = [law.strip() for law in args.laws.split(",") if law.strip()]
+    if not laws or any(law not in LAW_FREE for law in laws):
+        parser.error(f"--laws: choose from {', '.join(LAW_FREE)}, got {args.laws!r}")
     model = CobraModel.load()
     rows: list[dict] = []
     t_all = time.perf_counter()
@@ -209,7 +246,8 @@ def main(argv: list[str] | None = None) -> int:
         """Write the rows so far (after every case: a long run interrupted keeps what it measured)."""
         meta = {"configs": {c: describe(configs[c]) for c in chosen}, "seeds": seeds, "dev_seeds": list(DEV_SEEDS),
                 "headings_rad": headings, "train_duration_s": args.train_duration,
-                "holdout_duration_s": args.holdout_duration, "free": list(start.free_names), "truth": TRUTH,
+                "holdout_duration_s": args.holdout_duration, "laws": laws, "free": {law: list(LAW_FREE[law]) for law in laws},
+                "truth": TRUTH, "validation_turn_rad": VALIDATION_TURN_RAD,
                 "iterations_per_stage": args.iterations, "budget_s": args.budget,
                 "joint_floor_rad": JOINT_FLOOR_RAD, "head_bound_m": HEAD_BOUND_M,
                 "joint_bound_factor": JOINT_BOUND_FACTOR, "cases_done": len(rows) // len(GAITS_HZ),
@@ -222,12 +260,12 @@ def main(argv: list[str] | None = None) -> int:
         progress = lambda msg, k=k, t_case=t_case: print(  # noqa: E731
             f"[case {k + 1}/{len(cases)} {time.perf_counter() - t_case:5.0f} s] {msg}", file=sys.stderr, flush=True)
         progress(f"{config}, seed {seed}, heading {heading:g} rad")
-        new = run_case(config, configs[config], seed, heading, args, start, model, progress)
+        new = run_case(config, configs[config], seed, heading, args, laws, model, progress)
         rows += new
         for r in new:
             print(f"{config:14s} seed {seed} heading {heading:g} {r['gait_hz']:g} Hz: head "
-                  f"{r['head_final_m_nominal']:.3f} -> {r['head_final_m_fitted']:.3f} m, joint RMSE "
-                  f"{r['joint_rmse_rad_fitted'] * 1e3:.2f} mrad", flush=True)
+                  f"{r['head_final_m_nominal']:.3f} -> {r['head_final_m_fitted']:.3f} m ({r['chosen_law']}), joint "
+                  f"RMSE {r['joint_rmse_rad_fitted'] * 1e3:.2f} mrad", flush=True)
         (json_path, md_path), md = save()
     print(md)
     print(f"wrote {json_path} and {md_path}", file=sys.stderr)

@@ -120,6 +120,9 @@ NOMINAL: tuple[Parameter, ...] = (
     Parameter("friction_cone", "1", 0.0, 0.0, 0.95, frozen=True, group="ground",
               doc="shape of the sliding-friction limit: 0 per-axis box (the paper's law), "
                   "0.5 isotropic circle, toward 1 the diamond of a pyramidal cone"),
+    Parameter("contact_time_constant", "s", 0.02, 0.002, 0.1, log_scale=True, frozen=True, group="ground",
+              doc="time constant of the soft-constraint contact law (SimSettings(contact=\"soft_constraint\") "
+                  "only; MuJoCo's solref[0]): how fast a contact's approach, penetration and slip relax"),
     Parameter("contact_rounding", "m", 0.0, 0.0, design.MODULE_RADIUS_M, frozen=True, group="ground",
               doc="edge radius of the modules' ends where they touch the ground: 0 sharp "
                   "cylinder rim, the module radius a hemispherical (capsule) end"),

@@ -58,6 +58,8 @@ class BatchSimulator:
         bounds = np.flatnonzero(np.diff([rank[keys[e]] for e in self._slots])) + 1
         self._groups = [(int(a), int(b), pin.ModelPool(self.sims[self._slots[a]].model.pin_model, threads))
                         for a, b in zip(np.r_[0, bounds], np.r_[bounds, len(params)])]
+        # the soft-constraint law needs each environment's inverse mass matrix (one Data per group)
+        self._models = [(m, m.createData()) for m in (self.sims[self._slots[a]].model.pin_model for a, _, _ in self._groups)]
         self.act = np.ascontiguousarray(np.stack([s.act for s in self.sims]))
         self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
         self._first = first
@@ -115,6 +117,13 @@ class BatchSimulator:
         KR = np.empty((n, len(self.model.chain.parents), 3, 3))  # kernel workspace
         KV = np.empty((n, len(self.model.chain.parents), 6, 3))
         on = np.ones(self.model.n_joints, dtype=np.bool_)
+        soft = s.contact == "soft_constraint"
+        if soft:
+            nv = self.model.nv
+            MINV = np.empty((n, nv, nv))
+            NLE = np.empty((nv, n), order="F")
+            ZERO = np.zeros((nv, n), order="F")
+            WARM = np.zeros((n, len(self.model.features), 4))
         sub = s.substeps
         every = record_every if record_every > 0 else max(n_steps, 1)
         n_rec = n_steps // every + 1
@@ -134,8 +143,16 @@ class BatchSimulator:
             K.batch_pre_step(i % sub == 0, Q, V, g, gidx, integ, prev, duty, on, act, f.scal, ground,
                              self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
                              TAU, cur, X, F, KR, KV, status)
-            for a, b, pool in self._groups:
-                pin.abaInParallel(self.threads, pool, Q[a:b].T, V[a:b].T, TAU[a:b].T, A[:, a:b])
+            if soft:
+                for (a, b, pool), (pm, data) in zip(self._groups, self._models):
+                    pin.rneaInParallel(self.threads, pool, Q[a:b].T, V[a:b].T, ZERO[:, a:b], NLE[:, a:b])
+                    for e in range(a, b):
+                        MINV[e] = pin.computeMinverse(pm, data, Q[e])
+                K.batch_soft_contact_acceleration(V, TAU, MINV, NLE.T, self.model.chain.floating, f._chain_i[:, 0],
+                                                  f._chain_i[:, 2], f._feat_i[:, 0], X, KR, KV, ground, WARM, A.T)
+            else:
+                for a, b, pool in self._groups:
+                    pin.abaInParallel(self.threads, pool, Q[a:b].T, V[a:b].T, TAU[a:b].T, A[:, a:b])
             K.batch_post_step(Q, V, A.T, f.scal, self.model.chain.floating, Qn, Vn, status)
             if status.any():
                 bad = np.flatnonzero(status[back])

@@ -21,8 +21,8 @@ from cobra_model.parameters import Parameter
 from cobra_model.servo import PULSES_PER_REV, PWM_FULL_SCALE, SERVO_STALL_TORQUE_NM
 
 # Indices into the ground parameter array ``ground``.
-G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL, G_CONE, G_ROUND = range(10)
-N_GROUND = 10
+G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL, G_CONE, G_ROUND, G_TC = range(11)
+N_GROUND = 11
 
 # Indices into the per-joint actuator array ``act`` (shape (n_joints, N_ACT)).
 A_DAMPING, A_RKM, A_COULOMB, A_TAU_MAX, A_COULOMB_EPS, A_ENC_OFFSET, A_BACKLASH = range(7)
@@ -51,6 +51,7 @@ EFFECT_PARAMETERS: tuple[Parameter, ...] = (
 GROUND_PARAMETERS: dict[str, int] = {
     "k1": G_K1, "k2": G_K2, "mu_c": G_MU_C, "mu_s": G_MU_S, "mu_v": G_MU_V, "v_s": G_V_S,
     "lateral_friction_ratio": G_LATERAL, "friction_cone": G_CONE, "contact_rounding": G_ROUND,
+    "contact_time_constant": G_TC,
 }
 #: Where a per-joint parameter lands in ``act`` (packed with :meth:`ModelParameters.per_joint`).
 #: ``A_RKM`` (the motor constant times the gear ratio) and the settings' ``A_COULOMB_EPS`` are
@@ -488,6 +489,241 @@ def post_step(q, v, a, scal, floating, q_out, v_out):
     return check_state(v_out, scal[S_MAX_SPEED])
 
 
+#: MuJoCo's default constraint impedance ``solimp`` (d0, d_width, width [m], midpoint, power) and
+#: ``solref`` damping ratio: the soft-constraint contact law's fixed shape (:func:`soft_contact_acceleration`).
+SOFT_SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)
+SOFT_DAMPRATIO = 1.0
+
+
+@njit(cache=True)
+def soft_impedance(depth: float) -> float:
+    """MuJoCo's constraint impedance ``d(r)`` in (0, 1) at penetration ``|depth|`` [m] (:data:`SOFT_SOLIMP`)."""
+    d0, dw, width, mid, power = SOFT_SOLIMP
+    x = min(abs(depth) / width, 1.0)
+    if x <= mid:
+        y = x ** power / mid ** (power - 1.0)
+    else:
+        y = 1.0 - (1.0 - x) ** power / (1.0 - mid) ** (power - 1.0)
+    return d0 + y * (dw - d0)
+
+
+@njit(cache=True)
+def nonnegative_qp(M, r, f):
+    """The LCP ``f >= 0, w = M f - r >= 0, f . w = 0`` for a positive definite ``M`` (m, m): the
+    minimum of ``f M f / 2 - r f`` over ``f >= 0``, by Lawson and Hanson's active-set method.
+
+    ``f`` (m,) holds a start (>= 0: the last step's forces) and receives the solution. Each
+    iteration solves the system of the rows carrying a force; from a start near the solution
+    a few do. Returns the number of iterations.
+    """
+    m = r.shape[0]
+    free = np.zeros(m, dtype=np.bool_)
+    for j in range(m):
+        free[j] = f[j] > 0.0
+    scale = 1e-12 * (np.max(np.abs(r)) + 1e-300)
+    for it in range(1, 3 * m + 10):
+        # the best point with the bound rows at zero, approached as far as f stays >= 0
+        while True:
+            idx = np.flatnonzero(free)
+            z = np.zeros(m)
+            if idx.shape[0] > 0:
+                sub = np.empty((idx.shape[0], idx.shape[0]))
+                rs = np.empty(idx.shape[0])
+                for a in range(idx.shape[0]):
+                    rs[a] = r[idx[a]]
+                    for b in range(idx.shape[0]):
+                        sub[a, b] = M[idx[a], idx[b]]
+                zs = np.linalg.solve(sub, rs)
+                for a in range(idx.shape[0]):
+                    z[idx[a]] = zs[a]
+            alpha = 1.0
+            for j in idx:
+                if z[j] < 0.0:
+                    alpha = min(alpha, f[j] / (f[j] - z[j]))
+            for j in range(m):
+                f[j] += alpha * (z[j] - f[j])
+            if alpha >= 1.0:
+                break
+            for j in idx:
+                if f[j] <= 1e-15:
+                    f[j] = 0.0
+                    free[j] = False
+        # the bound row that most wants a force joins
+        w_min, j_min = -scale, -1
+        for j in range(m):
+            if not free[j]:
+                w = -r[j]
+                for c in range(m):
+                    w += M[j, c] * f[c]
+                if w < w_min:
+                    w_min, j_min = w, j
+        if j_min < 0:
+            return it
+        free[j_min] = True
+    return 3 * m + 10
+
+
+@njit(cache=True)
+def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1, mu2):
+    """The friction pyramid's edge rows of every touching point (``X[k, 2] < 0``), in feature order.
+
+    Returns ``rows`` (4 n, nv): ``J_n + mu1 J_t1``, ``J_n - mu1 J_t1``, ``J_n + mu2 J_t2``,
+    ``J_n - mu2 J_t2`` for each of the n touching points, ``J_*`` the point's world Jacobian
+    along the ground normal ``z``, the body's x axis on the ground ``t1`` and ``t2 = z x t1``
+    (Pinocchio's velocity convention: a floating root's columns act in its own frame); and
+    ``depth`` (4 n,) the points' heights [m] (< 0), repeated per edge.
+    """
+    touching = 0
+    for k in range(X.shape[0]):
+        if X[k, 2] < 0.0:
+            touching += 1
+    rows = np.zeros((4 * touching, nv))
+    depth = np.empty(4 * touching)
+    R, p, aw = kin_R, kin_v[:, 0], kin_v[:, 3]
+    Jp = np.zeros((3, nv))
+    row = 0
+    for k in range(X.shape[0]):
+        if X[k, 2] >= 0.0:
+            continue
+        b = f_body[k]
+        x0, x1, x2 = X[k, 0], X[k, 1], X[k, 2]
+        Jp[:, :] = 0.0
+        i = b
+        while i >= 0:
+            if floating and i == 0:
+                rx, ry, rz = x0 - p[0, 0], x1 - p[0, 1], x2 - p[0, 2]
+                for c in range(3):
+                    e0, e1, e2 = R[0, 0, c], R[0, 1, c], R[0, 2, c]
+                    Jp[0, c], Jp[1, c], Jp[2, c] = e0, e1, e2
+                    Jp[0, 3 + c] = e1 * rz - e2 * ry
+                    Jp[1, 3 + c] = e2 * rx - e0 * rz
+                    Jp[2, 3 + c] = e0 * ry - e1 * rx
+            else:
+                rx, ry, rz = x0 - p[i, 0], x1 - p[i, 1], x2 - p[i, 2]
+                e0, e1, e2 = aw[i, 0], aw[i, 1], aw[i, 2]
+                col = vidx[i]
+                Jp[0, col] = e1 * rz - e2 * ry
+                Jp[1, col] = e2 * rx - e0 * rz
+                Jp[2, col] = e0 * ry - e1 * rx
+            i = parents[i]
+        bx0, bx1 = R[b, 0, 0], R[b, 1, 0]
+        n = np.sqrt(bx0 * bx0 + bx1 * bx1)
+        if n > 1e-6:
+            t1x, t1y = bx0 / n, bx1 / n
+        else:
+            t1x, t1y = 1.0, 0.0
+        for col in range(nv):
+            jn = Jp[2, col]
+            j1 = Jp[0, col] * t1x + Jp[1, col] * t1y
+            j2 = -Jp[0, col] * t1y + Jp[1, col] * t1x
+            rows[row, col] = jn + mu1 * j1
+            rows[row + 1, col] = jn - mu1 * j1
+            rows[row + 2, col] = jn + mu2 * j2
+            rows[row + 3, col] = jn - mu2 * j2
+        for e in range(4):
+            depth[row + e] = x2
+        row += 4
+    return rows, depth
+
+
+@njit(cache=True)
+def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body, X, kin_R, kin_v,
+                              ground, warm, a_out):
+    """Accelerations (nv,) under the soft-constraint contact law, MuJoCo's (condim 3, pyramidal).
+
+    Every touching point (``X[k, 2] < 0``, from the last :func:`generalized_forces` on this
+    state with the compliant ground switched off) gets the four edge rows
+    ``J_n +- mu1 J_t1``, ``J_n +- mu2 J_t2`` of the friction pyramid (``t1`` the body's x axis on
+    the ground, ``t2 = z x t1``, as in :func:`ground_forces`), each carrying a force ``f >= 0``
+    that solves, for all rows together,
+
+        (A + R) f = a_ref - J a0,  A = J D^-1 J^T,  R = (1 - d) / d diag(A),
+        a_ref = -b J v - k d r,    b = 2 / (d_max tc),  k = 1 / (d_max^2 tc^2 zeta^2),
+
+    with ``a0 = D^-1 (tau - nle)`` the acceleration without contact, ``r`` the depth [m] and
+    ``d(r)`` :func:`soft_impedance`: a contact is a constraint whose violation (approach speed,
+    penetration, and slip along the pyramid's edges) relaxes with the time constant ``tc`` [s],
+    weighted by the robot's inertia at every contact at once (``R`` from the exact diagonal of
+    ``A``; MuJoCo approximates that diagonal from the bodies' weights at the reference pose).
+    Solved exactly by an active-set
+    method (:func:`nonnegative_qp`) from the last step's forces; the solution is unique
+    (``A + R`` is positive definite). (Gauss-Seidel sweeps, MuJoCo's PGS, stall here: a
+    contact's four edges are nearly parallel and so are the two contacts of one module.)
+
+    Args:
+        v, tau, nle: velocity, generalized force without contact and Pinocchio's nonlinear
+            effects (nv,).
+        Minv: ``D^-1`` with at least its upper triangle filled (``pin.computeMinverse``).
+        f_body, X, kin_R, kin_v: the features' bodies and the points, rotations and body
+            velocities :func:`ground_forces` left.
+        ground: the ground parameters: ``mu1 = G_MU_C`` along the body, ``mu2 = mu1 G_LATERAL``
+            sideways [1], the time constant ``tc = G_TC`` [s] (the others are unused).
+        warm: (nf, 4) each feature's edge forces [N] of the last step, the solver's start;
+            overwritten with this step's (zero where not touching).
+        a_out: output (nv,).
+
+    Returns:
+        the solver's iterations (0 without contact).
+    """
+    nv = v.shape[0]
+    D = np.empty((nv, nv))
+    for i in range(nv):
+        for j in range(nv):
+            D[i, j] = Minv[i, j] if i <= j else Minv[j, i]
+    g = np.empty(nv)
+    for i in range(nv):
+        g[i] = tau[i] - nle[i]
+    for i in range(nv):
+        acc = 0.0
+        for j in range(nv):
+            acc += D[i, j] * g[j]
+        a_out[i] = acc
+    mu1, tc = ground[G_MU_C], ground[G_TC]
+    rows, depth = soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1, mu1 * ground[G_LATERAL])
+    m = rows.shape[0]
+    if m == 0:
+        warm[:, :] = 0.0
+        return 0
+    W = rows @ D                      # (m, nv): rows D^-1, D^-1 symmetric
+    A = W @ rows.T
+    d_max = SOFT_SOLIMP[1]
+    bcoef = 2.0 / (d_max * tc)
+    kcoef = 1.0 / (d_max * d_max * tc * tc * SOFT_DAMPRATIO * SOFT_DAMPRATIO)
+    rhs = np.empty(m)
+    for j in range(m):
+        d = soft_impedance(depth[j])
+        A[j, j] += (1.0 - d) / d * A[j, j]
+        jv = 0.0
+        ja = 0.0
+        for col in range(nv):
+            jv += rows[j, col] * v[col]
+            ja += rows[j, col] * a_out[col]
+        rhs[j] = -bcoef * jv - kcoef * d * depth[j] - ja
+    f = np.zeros(m)
+    row = 0
+    for k in range(X.shape[0]):
+        if X[k, 2] < 0.0:
+            for e in range(4):
+                f[row + e] = warm[k, e]
+            row += 4
+    iterations = nonnegative_qp(A, rhs, f)
+    row = 0
+    for k in range(X.shape[0]):
+        if X[k, 2] < 0.0:
+            for e in range(4):
+                warm[k, e] = f[row + e]
+            row += 4
+        else:
+            for e in range(4):
+                warm[k, e] = 0.0
+    for col in range(nv):
+        acc = 0.0
+        for j in range(m):
+            acc += W[j, col] * f[j]
+        a_out[col] += acc
+    return iterations
+
+
 @njit(cache=True, parallel=True)
 def batch_pre_step(control, Q, V, goals, goal_index, integ, prev_err, duty, on, act, scal, ground, floating,
                    chain_i, chain_R, chain_f, feat_i, feat_f, TAU, current, X, F, KR, KV, status):
@@ -510,3 +746,11 @@ def batch_post_step(Q, V, A, scal, floating, Q_out, V_out, status):
         s = post_step(Q[e], V[e], A[e], scal, floating, Q_out[e], V_out[e])
         if s != 0:
             status[e] = s
+
+
+@njit(cache=True, parallel=True)
+def batch_soft_contact_acceleration(V, TAU, MINV, NLE, floating, parents, vidx, f_body, X, KR, KV, ground, WARM, A):
+    """:func:`soft_contact_acceleration` for every environment ``e`` of a batch (rows)."""
+    for e in prange(V.shape[0]):
+        soft_contact_acceleration(V[e], TAU[e], MINV[e], NLE[e], floating, parents, vidx, f_body, X[e], KR[e], KV[e],
+                                  ground[e], WARM[e], A[e])

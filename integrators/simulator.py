@@ -104,6 +104,8 @@ class ServoGains:
 
 #: The physics steps :class:`SimSettings` offers.
 SCHEMES = ("velocity", "momentum")
+#: The contact laws :class:`SimSettings` offers.
+CONTACT_LAWS = ("compliant", "soft_constraint")
 
 
 @dataclass(frozen=True)
@@ -122,6 +124,14 @@ class SimSettings:
         scheme: ``"velocity"`` (the step above; batched fits use it) or ``"momentum"``
             (:mod:`integrators.momentum_step`: symplectic Euler on the momentum, bounded energy
             error, about 20 times the cost; single rollouts only).
+        contact: ``"compliant"`` (the spring-damper ground with the Stribeck friction law,
+            :func:`integrators.kernels.ground_forces`; batched fits use it) or
+            ``"soft_constraint"`` (MuJoCo's contact law: a soft constraint on the friction
+            pyramid's edges, solved for all contacts together,
+            :func:`integrators.kernels.soft_contact_acceleration`; sliding friction ``mu_c``
+            along the body and ``lateral_friction_ratio`` x ``mu_c`` sideways, no Stribeck or
+            viscous term, ``k1``/``k2`` unused, the time constant the parameter
+            ``contact_time_constant``; velocity-form steps, about twice the cost).
     """
 
     dt: float = 1e-3
@@ -133,12 +143,17 @@ class SimSettings:
     max_depth: float = 0.03
     max_speed: float = 100.0
     scheme: str = "velocity"
+    contact: str = "compliant"
 
     def __post_init__(self) -> None:
         if not self.dt > 0:
             raise ValueError(f"dt must be > 0 s, got {self.dt}")
         if self.scheme not in SCHEMES:
             raise ValueError(f"scheme must be one of {', '.join(SCHEMES)}, got {self.scheme!r}")
+        if self.contact not in CONTACT_LAWS:
+            raise ValueError(f"contact must be one of {', '.join(CONTACT_LAWS)}, got {self.contact!r}")
+        if self.contact == "soft_constraint" and self.scheme != "velocity":
+            raise ValueError(f"the soft_constraint contact runs with the velocity scheme, got {self.scheme!r}")
         ratio = self.control_dt / self.dt
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError(
@@ -224,6 +239,13 @@ class Simulator:
         for name, slot in K.GROUND_PARAMETERS.items():
             ground[slot] = effect_value(p, name)
         ground[K.G_EPS] = s.sgn_eps
+        if s.contact == "soft_constraint":
+            # the compliant ground off (no normal force, hence no friction in the force kernels):
+            # the contact forces come from the constraint (soft_contact_acceleration)
+            ground[[K.G_K1, K.G_K2, K.G_MU_V]] = 0.0
+            if not ground[K.G_TC] >= 2 * s.dt - 1e-12:
+                raise InputError(f"contact_time_constant = {ground[K.G_TC]:g} s: the soft-constraint contact needs "
+                                 f"at least two steps (2 dt = {2 * s.dt:g} s)")
         self.ground = ground
         act = np.zeros((n, K.N_ACT))
         for name, slot in K.ACTUATOR_PARAMETERS.items():
@@ -250,6 +272,7 @@ class Simulator:
         self._kin_R = np.empty((len(ch.parents), 3, 3))  # kernel workspace (body poses, velocities)
         self._kin_v = np.empty((len(ch.parents), 6, 3))
         self._momentum = MomentumStep(self.model, s.dt) if s.scheme == "momentum" else None
+        self._soft_warm = np.zeros((len(f), 4))  # the soft-constraint solver's last edge forces [N]
 
     def with_gains(self, gains: ServoGains) -> "Simulator":
         """A simulator identical but for the servo gains."""
@@ -343,7 +366,15 @@ class Simulator:
         return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1)
 
     def _advance(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray, v_out: np.ndarray) -> int:
-        """The rigid body's step under generalized force ``tau`` by ``settings.scheme``; a kernel status."""
+        """The rigid body's step under generalized force ``tau`` by ``settings.scheme`` (with the
+        soft-constraint contact forces if that is the contact law); a kernel status."""
+        if self.settings.contact == "soft_constraint":
+            a = np.empty(self.model.nv)
+            K.soft_contact_acceleration(v, tau, pin.computeMinverse(self._pin, self._data, q),
+                                        pin.nonLinearEffects(self._pin, self._data, q, v), self.model.chain.floating,
+                                        self._chain_i[:, 0], self._chain_i[:, 2], self._feat_i[:, 0], self._X,
+                                        self._kin_R, self._kin_v, self.ground, self._soft_warm, a)
+            return K.post_step(q, v, a, self.scal, self.model.chain.floating, q_out, v_out)
         if self._momentum is None:
             a = pin.aba(self._pin, self._data, q, v, tau)
             return K.post_step(q, v, a, self.scal, self.model.chain.floating, q_out, v_out)
@@ -417,7 +448,7 @@ class Simulator:
         pinm, data = self._pin, self._data
         report_every = max(1, n_steps // 100)
         pre, post, aba = K.pre_step, K.post_step, pin.aba
-        advance = None if self._momentum is None else self._advance
+        advance = None if self._momentum is None and s.contact == "compliant" else self._advance
         for i in range(n_steps + 1):
             goal = goals[i // sub]
             if i % record_every == 0:

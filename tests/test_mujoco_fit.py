@@ -2,9 +2,11 @@
 
 MuJoCo's twin (sysid.generators.mujoco_recording) touches the ground through body-aligned capsule pairs with a
 pyramidal friction cone: a diamond-shaped friction limit in the ground plane and hemispherical
-module ends. Our paper's law is a box limit on sharp cylinder rims; with the limit's shape
-(``friction_cone``) and the ends' rounding (``contact_rounding``) free, the fit must find
-MuJoCo's shapes from the motion alone, and its joints must then follow MuJoCo's far better.
+module ends, all a soft constraint with a 20 ms time constant. Our paper's law is a box limit on
+sharp cylinder rims; with the limit's shape (``friction_cone``) and the ends' rounding
+(``contact_rounding``) free, the compliant ground's fit must find MuJoCo's shapes from the motion
+alone. Its path still drifts from MuJoCo's; the soft-constraint law, fitted beside it and chosen
+on validation runs (``sysid.identification.contact_choice``), follows it.
 """
 from __future__ import annotations
 
@@ -15,6 +17,8 @@ from cobra_model import design
 from cobra_model.parameters import ModelParameters
 from integrators.simulate import simulate_like
 from sysid.generators.dataset import RunPlan
+from integrators.simulator import SimSettings
+from sysid.identification.contact_choice import choose_contact_law
 from sysid.identification.lsq import fit_lsq
 from sysid.gap.metrics import compare_runs
 from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_options
@@ -28,35 +32,56 @@ FREE = ["joint_damping", "motor_km", "k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", 
 GAITS = (0.35, 0.5, 0.65)
 
 
-def fit_case(cobra, options_of):
-    """Three 3 s training runs and three 6 s held-out runs at another heading (seed 5, the
-    development seed of benchmarks/mujoco_fit.py), the LM fit and the held-out comparisons."""
+def record(cobra, options, rng, name, duration, xy, heading):
     truth = ModelParameters.nominal().with_values(**TRUTH)
-    rng = np.random.default_rng(5)
-    options = options_of(twin_options(truth))
-    train = [record_mujoco(RunPlan(f"t{f}", f, 3.0, (0.0, 0.0), 0.3, "train"), options, rng, cobra, truth)
-             for f in GAITS]
-    hold = [record_mujoco(RunPlan(f"h{f}", f, 6.0, (0.5, -0.5), 1.3, "holdout"), options, rng, cobra, truth)
+    return [record_mujoco(RunPlan(f"{name}{f}", f, duration, xy, heading, name), options, rng, cobra, truth)
             for f in GAITS]
-    start = ModelParameters.nominal().with_frozen(free=FREE)
-    fit = fit_lsq(Objective(train, start, Weights()), horizons_s=(1.5,), max_iterations=8)
-    gaps = {name: [compare_runs(run, simulate_like(run, params=p)).to_json_dict() for run in hold]
-            for name, p in (("nominal", start), ("fitted", fit.params))}
-    return fit, gaps
+
+
+def runs_of(cobra, options_of):
+    """Three 3 s training runs and three 6 s held-out runs at another heading (seed 5, the
+    development seed of benchmarks/mujoco_fit.py)."""
+    truth = ModelParameters.nominal().with_values(**TRUTH)
+    options = options_of(twin_options(truth))
+    rng = np.random.default_rng(5)
+    return (record(cobra, options, rng, "t", 3.0, (0.0, 0.0), 0.3), record(cobra, options, rng, "h", 6.0, (0.5, -0.5), 1.3),
+            options)
+
+
+def fit(objective):
+    return fit_lsq(objective, horizons_s=(1.5,), max_iterations=8)
+
+
+def gaps_of(runs, named_params):
+    return {name: [compare_runs(run, simulate_like(run, params=p, settings=settings)).to_json_dict() for run in runs]
+            for name, (p, settings) in named_params.items()}
 
 
 @pytest.fixture(scope="module")
 def case(cobra):
-    return fit_case(cobra, lambda twin: twin)
+    """On MuJoCo's default contact: both contact laws fitted, one chosen on three validation runs
+    (3 s, heading 0.8 rad, their own noise)."""
+    train, hold, options = runs_of(cobra, lambda twin: twin)
+    valid = record(cobra, options, np.random.default_rng(5 + 10_000), "v", 3.0, (-0.5, 0.5), 0.8)
+    start = ModelParameters.nominal()
+    choice = choose_contact_law(train, valid, start, fit=fit)
+    fits = {f.law: f.fit for f in choice.fits}
+    gaps = gaps_of(hold, {"nominal": (start, SimSettings()),
+                          **{law: (r.params, SimSettings(contact=law)) for law, r in fits.items()}})
+    return choice, fits, gaps
 
 
 @pytest.fixture(scope="module")
 def stiff_case(cobra):
-    return fit_case(cobra, stiff_contact)
+    train, hold, _ = runs_of(cobra, stiff_contact)
+    start = ModelParameters.nominal().with_frozen(free=FREE)
+    result = fit(Objective(train, start, Weights()))
+    return result, gaps_of(hold, {"nominal": (start, SimSettings()), "fitted": (result.params, SimSettings())})
 
 
-def test_the_fit_finds_mujocos_contact_shapes(case):
-    fit, _ = case
+def test_the_compliant_fit_finds_mujocos_contact_shapes(case):
+    _, fits, _ = case
+    fit = fits["compliant"]
     # pyramid with body-aligned edges -> a diamond, cone -> 1 (0 = box, 0.5 = circle); measured 0.87
     assert fit.params.friction_cone > 0.6
     # capsule ends: rounding = the module radius (0 = sharp rim); measured 0.042 of 0.045 m
@@ -64,19 +89,30 @@ def test_the_fit_finds_mujocos_contact_shapes(case):
 
 
 def test_the_fitted_joints_follow_mujocos(case):
-    _, gaps = case
+    choice, _, gaps = case
     before = np.array([g["joint_rmse_rad"]["mean"] for g in gaps["nominal"]])
-    after = np.array([g["joint_rmse_rad"]["mean"] for g in gaps["fitted"]])
+    after = np.array([g["joint_rmse_rad"]["mean"] for g in gaps[choice.chosen]])
     # held-out runs at another heading; measured 5.9-16 -> 1.4-2.5 mrad on the development seed
     assert np.all(after < 0.5 * before), (before, after)
 
 
-@pytest.mark.xfail(strict=True, reason="issue 16: MuJoCo's default soft contact (solref 20 ms) moves the path in a "
-                                       "way no parameter of our ground follows (6-21 cm held-out, "
-                                       "benchmarks/results/mujoco_fit.md, contact_time_constant.md)")
+def test_on_mujocos_soft_contact_the_soft_constraint_law_is_chosen(case):
+    """Chosen on validation runs, with MuJoCo's time constant and sliding friction found."""
+    choice, fits, gaps = case
+    assert choice.chosen == "soft_constraint", choice.to_json()
+    soft = fits["soft_constraint"].params
+    assert 0.01 <= soft.contact_time_constant <= 0.04        # MuJoCo's solref[0] 0.02 s
+    assert abs(soft.mu_c - 0.24) <= 0.04
+    worse = [max(g["head_final_error_m"] for g in gaps[law]) for law in ("compliant", "soft_constraint")]
+    assert worse[1] < worse[0]                               # and it predicts the held-out runs better
+
+
+@pytest.mark.xfail(strict=True, reason="issue 16: with the soft-constraint law chosen the held-out error falls but "
+                                       "not below 5 cm on every gait (14 cm here on 3 s training runs; 9 of 18 "
+                                       "twin gaits within 5 cm in benchmarks/results/mujoco_fit.md)")
 def test_held_out_head_error_within_5_cm_on_every_gait(case):
-    _, gaps = case
-    assert max(g["head_final_error_m"] for g in gaps["fitted"]) <= 0.05
+    choice, _, gaps = case
+    assert max(g["head_final_error_m"] for g in gaps[choice.chosen]) <= 0.05
 
 
 def test_on_mujocos_stiff_contact_the_held_out_head_error_is_within_5_cm(stiff_case):

@@ -1,0 +1,175 @@
+"""The soft-constraint contact law (``SimSettings(contact="soft_constraint")``): MuJoCo's contact.
+
+Its pieces are checked against independent references (the edge rows against Pinocchio's frame
+Jacobians, the force solver against brute-force enumeration, the impedance against MuJoCo's
+formula), its physics by invariants (a module at rest sinks to where the constraint's spring
+holds its weight; edge forces push, never pull), and the law itself against MuJoCo: on MuJoCo's
+default contact (time constant 20 ms) our compliant ground at MuJoCo's values ends a 3 s,
+0.5 Hz run several centimetres from MuJoCo's head, the soft-constraint law about one.
+"""
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from cobra_model import ModelParameters
+from cobra_model.errors import InputError
+from cobra_model.gait import SidewindingGait
+from integrators import kernels as K
+from integrators import mujoco_twin
+from integrators.batch import BatchSimulator
+from integrators.simulator import SimSettings, Simulator
+from sysid.generators.mujoco_recording import rollout, twin_counterpart, twin_options
+
+SOFT = SimSettings(contact="soft_constraint")
+
+
+def test_impedance_is_mujocos_default_solimp():
+    assert K.soft_impedance(0.0) == pytest.approx(0.9)
+    assert K.soft_impedance(-0.0005) == pytest.approx(0.925)       # the midpoint
+    assert K.soft_impedance(-0.002) == pytest.approx(0.95)          # beyond the width
+
+
+def test_nonnegative_qp_solves_the_lcp_exactly():
+    """Against enumerating every active set of small random positive definite problems."""
+    rng = np.random.default_rng(3)
+    for trial in range(40):
+        m = int(rng.integers(1, 7))
+        B = rng.normal(size=(m, m))
+        M = B @ B.T + 0.05 * np.eye(m)
+        r = rng.normal(size=m)
+        best, best_cost = None, np.inf
+        for free in itertools.product((False, True), repeat=m):
+            idx = np.flatnonzero(free)
+            f = np.zeros(m)
+            if len(idx):
+                f[idx] = np.linalg.solve(M[np.ix_(idx, idx)], r[idx])
+            if np.all(f >= -1e-12):
+                cost = 0.5 * f @ M @ f - r @ f
+                if cost < best_cost:
+                    best, best_cost = f, cost
+        start = np.abs(rng.normal(size=m)) * (trial % 2)      # cold and warm starts
+        K.nonnegative_qp(M, r, start)
+        np.testing.assert_allclose(start, best, atol=1e-9)
+        w = M @ start - r
+        assert np.all(start >= 0) and np.all(w >= -1e-9) and abs(start @ w) < 1e-9
+
+
+def test_edge_rows_are_pinocchios_contact_jacobian(cobra):
+    sim = Simulator(cobra, ModelParameters.nominal(), SOFT)
+    rng = np.random.default_rng(0)
+    q = sim.rest_state(rng.uniform(-0.5, 0.5, cobra.n_joints), heading_rad=0.7).q
+    q[2] -= 0.004                                             # every lowest point touches
+    v = rng.normal(scale=0.3, size=cobra.nv)
+    tau = np.empty(cobra.nv)
+    n = cobra.n_joints
+    K.pre_step(True, q, v, np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n, dtype=np.bool_),
+               sim.act, sim.scal, sim.ground, True, sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i,
+               sim._feat_f, tau, np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v)
+    mu1, mu2 = 0.3, 0.6
+    rows, depth = K.soft_contact_rows(cobra.nv, True, sim._chain_i[:, 0], sim._chain_i[:, 2], sim._feat_i[:, 0],
+                                      sim._X, sim._kin_R, sim._kin_v, mu1, mu2)
+    touching = np.flatnonzero(sim._X[:, 2] < 0)
+    assert len(touching) >= 2 and rows.shape == (4 * len(touching), cobra.nv)
+    J = cobra.contact_jacobian(q, sim.ground[K.G_ROUND])
+    data = cobra.pin_model.createData()
+    pin.forwardKinematics(cobra.pin_model, data, q)
+    for i, k in enumerate(touching):
+        Jk = J[3 * k:3 * k + 3]
+        x_axis = data.oMi[int(cobra.features.body[k]) + 1].rotation[:, 0]
+        t1 = np.array([x_axis[0], x_axis[1], 0.0]) / np.hypot(x_axis[0], x_axis[1])
+        t2 = np.cross([0.0, 0.0, 1.0], t1)
+        expected = [Jk[2] + mu1 * t1 @ Jk, Jk[2] - mu1 * t1 @ Jk, Jk[2] + mu2 * t2 @ Jk, Jk[2] - mu2 * t2 @ Jk]
+        np.testing.assert_allclose(rows[4 * i:4 * i + 4], expected, atol=1e-12)
+        assert np.all(depth[4 * i:4 * i + 4] == sim._X[k, 2])
+
+
+def test_at_rest_the_constraint_holds_the_weight_pushing_only(cobra):
+    """Lying still under gravity, the robot settles where the constraint's regulariser and its
+    spring balance (``R f = -k d r``): at 20 ms a sustained load sinks by tens of micrometres,
+    as in MuJoCo, far less than the constraint's 1 mm impedance width; no velocity is left and
+    every edge force is >= 0."""
+    params = twin_counterpart(ModelParameters.nominal())
+    sim = Simulator(cobra, params, SOFT)
+    q_joints = np.zeros(cobra.n_joints)
+    traj = sim.rollout(sim.rest_state(q_joints), np.tile(q_joints, (10, 1)), 2.0, record_every=100)
+    assert np.abs(traj.v[-1]).max() < 1e-3
+    lowest = cobra.contact_points(traj.q[-1], sim.ground[K.G_ROUND])[:, 2].min()
+    assert -0.0005 < lowest < -0.00001
+    assert np.all(sim._soft_warm >= 0) and sim._soft_warm.sum() > 0
+
+
+def test_bad_soft_settings_are_refused(cobra):
+    with pytest.raises(InputError, match="contact_time_constant = 0.003 s: the soft-constraint contact needs at least"):
+        Simulator(cobra, ModelParameters.nominal().with_values(contact_time_constant=0.003),
+                  SimSettings(contact="soft_constraint", dt=0.002, control_dt=0.002))
+    with pytest.raises(ValueError, match="contact must be one of compliant, soft_constraint"):
+        SimSettings(contact="rigid")
+
+
+@pytest.mark.slow
+def test_the_soft_law_follows_mujocos_default_contact(cobra):
+    truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
+    ours = twin_counterpart(truth)
+    gait, duration = SidewindingGait(0.5), 3.0
+    q0 = Simulator(cobra).rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=0.3).q
+    options = dataclasses.replace(twin_options(truth), solref=(0.02, 1.0), timestep=0.00025)
+    mj = mujoco_twin.build(cobra.urdf_path, options, truth)
+    _, qm, _ = rollout(mj, q0, gait.q_ref, duration, record_every=int(round(duration / 0.00025)),
+                       error_limit_rad=mujoco_twin.servo_error_limit(options))
+    mujoco = qm[-1, :2]
+    finals = {}
+    for contact in ("compliant", "soft_constraint"):
+        sim = Simulator(cobra, ours, SimSettings(contact=contact))
+        finals[contact] = sim.rollout(sim.state(q0), gait.q_ref, duration, record_every=3000).q[-1, :2]
+    gap = {c: np.linalg.norm(h - mujoco) for c, h in finals.items()}
+    assert np.linalg.norm(mujoco - q0[:2]) > 0.3                       # it sidewinds
+    assert gap["compliant"] > 0.04                                     # the structural gap (5.7 cm)
+    assert gap["soft_constraint"] < 0.4 * gap["compliant"]             # closed by the law
+
+
+def test_batched_soft_rollouts_are_the_single_ones(cobra):
+    """Environments with different friction, time constants and armature (two model groups)
+    step exactly as single rollouts do."""
+    gait = SidewindingGait(0.5)
+    nominal = twin_counterpart(ModelParameters.nominal())
+    params = [nominal, nominal.with_values(mu_c=0.4, mu_s=0.4, contact_time_constant=0.005),
+              nominal.with_values(armature=0.05, contact_time_constant=0.04)]
+    sims = [Simulator(cobra, p, SOFT) for p in params]
+    states = [sim.rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=0.3 * k) for k, sim in enumerate(sims)]
+    duration = 1.5
+    goals = sims[0].commands(gait.q_ref, 0.0, int(round(duration / 1e-3)) + 1)
+    batch = BatchSimulator(cobra, params, SOFT)
+    Q, _, _, _, _ = batch.rollout(states, np.repeat(goals[:, None], 3, axis=1), duration)
+    for k, sim in enumerate(sims):
+        single = sim.rollout(states[k], goals, duration, record_every=1500).q[-1]
+        np.testing.assert_allclose(Q[k], single, atol=1e-9)
+    assert np.linalg.norm(Q[0, :2] - Q[1, :2]) > 0.01                # the parameters matter
+
+
+def test_cobra_simulate_takes_the_contact_law(tmp_path):
+    from cobra_cli.main import main
+    from cobra_model.run_files import read_run
+
+    heads = {}
+    for law in ("compliant", "soft_constraint"):
+        assert main(["simulate", "--duration", "2", "--contact", law, "--out", str(tmp_path / f"{law}.csv")]) == 0
+        run = read_run(tmp_path / f"{law}.csv")
+        assert run.meta["sim_settings"]["contact"] == law
+        heads[law] = run.head_pos[-1, :2]
+    # two contact laws of one robot: both sidewind, not along the same path
+    assert np.linalg.norm(heads["soft_constraint"]) > 0.1
+    assert np.linalg.norm(heads["soft_constraint"] - heads["compliant"]) > 1e-3
+
+
+def test_choosing_a_contact_law_needs_held_out_runs_and_known_laws():
+    from sysid.identification.contact_choice import choose_contact_law
+
+    with pytest.raises(InputError, match="needs held-out runs that no fit sees"):
+        choose_contact_law([object()], [])
+    with pytest.raises(InputError, match=r"unknown contact law\(s\) \['rigid'\]; known: compliant, soft_constraint"):
+        choose_contact_law([object()], [object()], laws=["rigid"])
