@@ -212,6 +212,17 @@ def cone_weights(v1: float, v2: float, eps: float, cone: float):
 
 
 @njit(cache=True)
+def ground_tangent(R, b):
+    """The contact frame's first axis ``t1`` (x, y) on the ground: body ``b``'s x axis projected
+    on the ground and normalised (world x for a body standing upright); ``t2 = z x t1``."""
+    bx0, bx1 = R[b, 0, 0], R[b, 1, 0]
+    n = np.sqrt(bx0 * bx0 + bx1 * bx1)
+    if n > 1e-6:
+        return bx0 / n, bx1 / n
+    return 1.0, 0.0
+
+
+@njit(cache=True)
 def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
                   f_body, f_kind, f_c, f_a, f_r, ground, tau, X, F, max_depth, kin_R, kin_v):
     """Stribeck ground (paper Eqs. 3-6) on every contact feature, accumulated as ``J^T F``.
@@ -287,12 +298,7 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
         fz = -k1 * x2 - k2 * xv2
         if fz <= 0.0:
             continue
-        bx0, bx1 = R[b, 0, 0], R[b, 1, 0]
-        n = np.sqrt(bx0 * bx0 + bx1 * bx1)
-        if n > 1e-6:
-            t1x, t1y = bx0 / n, bx1 / n
-        else:
-            t1x, t1y = 1.0, 0.0
+        t1x, t1y = ground_tangent(R, b)
         v1 = xv0 * t1x + xv1 * t1y
         v2 = -xv0 * t1y + xv1 * t1x
         s1 = mu_c - (mu_c - mu_s) * np.exp(-(v1 / v_s) ** 2)
@@ -606,12 +612,7 @@ def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1,
                 Jp[1, col] = e2 * rx - e0 * rz
                 Jp[2, col] = e0 * ry - e1 * rx
             i = parents[i]
-        bx0, bx1 = R[b, 0, 0], R[b, 1, 0]
-        n = np.sqrt(bx0 * bx0 + bx1 * bx1)
-        if n > 1e-6:
-            t1x, t1y = bx0 / n, bx1 / n
-        else:
-            t1x, t1y = 1.0, 0.0
+        t1x, t1y = ground_tangent(R, b)
         for col in range(nv):
             jn = Jp[2, col]
             j1 = Jp[0, col] * t1x + Jp[1, col] * t1y
