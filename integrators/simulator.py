@@ -73,11 +73,16 @@ def effect_parameter(name: str) -> Parameter:
     return _EFFECT_PARAMETERS[name]
 
 
+def _inactive_value(name: str) -> float | None:
+    """The inactive value of effect parameter ``name``; None for any other parameter."""
+    inactive = _EFFECT_PARAMETERS.get(name)
+    return None if inactive is None else inactive.value
+
+
 def effect_value(params: ModelParameters, name: str) -> float:
     """The value of parameter ``name`` in ``params``: an effect's parameter the set lacks at its
     inactive value (:func:`effect_parameter`), any other the set's or nominal value."""
-    inactive = _EFFECT_PARAMETERS.get(name)
-    return params.get(name, None if inactive is None else inactive.value)
+    return params.get(name, _inactive_value(name))
 
 
 class SimulationDiverged(RuntimeError):
@@ -227,8 +232,7 @@ class Simulator:
         p, s = self.params, self.settings
         n = model.n_joints
         def per_joint(name: str) -> np.ndarray:
-            inactive = _EFFECT_PARAMETERS.get(name)
-            return p.per_joint(name, None if inactive is None else inactive.value)[:n]
+            return p.per_joint(name, _inactive_value(name))[:n]
 
         if effect_value(p, "link_mass_error"):
             model = model.with_link_mass(model.body_names[0], p.value("link_mass_error"))
