@@ -5,7 +5,7 @@
 Coulomb/Stribeck law on it) follows MuJoCo's stiff contact (1-2 ms) but not its default soft one
 (20 ms). This benchmark tests the structural explanation: MuJoCo's contact is a soft constraint
 on its friction pyramid's edges, normal and friction together, solved for all contacts at once
-(``SimSettings(contact="soft_constraint")``, :func:`integrators.kernels.soft_contact_acceleration`).
+(``ModelParameters.with_contact_law("soft_constraint")``, :func:`integrators.kernels.soft_contact_acceleration`).
 
 Both laws run in our 1 ms step (same servos, motors, joints, geometry) at MuJoCo's values
 (:func:`sysid.generators.mujoco_recording.twin_counterpart`) and are compared with MuJoCo's twin
@@ -34,7 +34,7 @@ from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
 from integrators import kernels as K
 from integrators import mujoco_twin
-from integrators.simulator import SimSettings, Simulator
+from integrators.simulator import Simulator
 from sysid.generators.mujoco_recording import rollout, twin_counterpart, twin_options
 
 #: MuJoCo's contact time constants [s]: near rigid, and its default.
@@ -48,10 +48,12 @@ LAWS = ("compliant", "soft_constraint")
 AIR_HEIGHT_M = 200.0
 
 
-def ours(model: CobraModel, params: ModelParameters, settings: SimSettings, gait: SidewindingGait,
+def ours(model: CobraModel, params: ModelParameters, gait: SidewindingGait,
          duration: float, q0: np.ndarray) -> tuple[np.ndarray, float]:
-    """Our configurations every :data:`SAMPLE_S` from rest at ``q0``, and the wall time per step [us]."""
-    sim = Simulator(model, params, settings)
+    """Our configurations (``params``' contact law, 1 ms steps) every :data:`SAMPLE_S` from rest at
+    ``q0``, and the wall time per step [us]."""
+    sim = Simulator(model, params)
+    settings = sim.settings
     t0 = time.perf_counter()
     traj = sim.rollout(sim.state(q0), gait.q_ref, duration, record_every=int(round(SAMPLE_S / settings.dt)))
     return traj.q, (time.perf_counter() - t0) / (duration / settings.dt) * 1e6
@@ -87,7 +89,7 @@ def main(argv: list[str] | None = None) -> int:
         q0 = start_configuration(model, gait)
         print(f"[{time.perf_counter() - t_all:5.0f} s] {f:g} Hz, no ground", file=sys.stderr, flush=True)
         q_air = q0 + np.eye(len(q0))[2] * AIR_HEIGHT_M
-        _, joints_air = compare(ours(model, params, SimSettings(), gait, duration, q_air)[0],
+        _, joints_air = compare(ours(model, params, gait, duration, q_air)[0],
                                 mujoco(model, truth, gait, duration, q_air, 0.02))
         for tc in TIME_CONSTANTS_S:
             print(f"[{time.perf_counter() - t_all:5.0f} s] {f:g} Hz, {tc * 1e3:g} ms: MuJoCo, then both laws",
@@ -96,7 +98,7 @@ def main(argv: list[str] | None = None) -> int:
             row = {"gait_hz": f, "time_constant_s": tc, "mujoco_displacement_m": float(np.linalg.norm(q_mj[-1, :2] - q0[:2])),
                    "joint_rms_no_ground_rad": joints_air}
             for law in LAWS:
-                q_law, us = ours(model, params.with_values(contact_time_constant=tc), SimSettings(contact=law), gait,
+                q_law, us = ours(model, params.with_values(contact_time_constant=tc).with_contact_law(law), gait,
                                   duration, q0)
                 row[f"{law}_head_to_mujoco_m"], row[f"{law}_joint_rms_rad"] = compare(q_law, q_mj)
                 cost[law].append(us)

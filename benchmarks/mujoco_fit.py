@@ -59,7 +59,6 @@ from cobra_model import CobraModel, ModelParameters
 from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulate import simulate_like
-from integrators.simulator import SimSettings
 from cobra_model.servo import PULSES_PER_REV
 from sysid.generators.dataset import RunPlan
 from sysid.identification.contact_choice import LAW_FREE, choose_contact_law
@@ -142,7 +141,7 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
     rows = []
     for run in hold:
         before = compare_runs(run, simulate_like(run, params=start))
-        per_law = {f.law: compare_runs(run, simulate_like(run, params=f.fit.params, settings=SimSettings(contact=f.law)))
+        per_law = {f.law: compare_runs(run, simulate_like(run, params=f.fit.params))
                    for f in choice.fits}
         after = per_law[choice.chosen]
         joint = after.mean_joint_rmse

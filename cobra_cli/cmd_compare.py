@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from cobra_cli.common import load_params
+from cobra_cli.common import add_contact_option, load_params
 from cobra_cli.progress import progress_bar
 from cobra_model.errors import InputError
 from cobra_model.run import Run
@@ -45,6 +45,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--params", metavar="P.json",
                    help="parameter file for the simulation (default: nominal parameters); "
                         "only without SIMULATED")
+    add_contact_option(p, "simulate")
     p.add_argument("--json", action="store_true", help="print the report as JSON")
     p.add_argument("--plots", metavar="DIR",
                    help=f"write PNG figures into DIR (created if missing): "
@@ -96,9 +97,9 @@ def run(args: argparse.Namespace) -> int:
     """Compare the runs (simulating the measured one if needed); print the report, draw the plots."""
     if not (np.isfinite(args.window) and args.window > 0):
         raise InputError(f"--window must be a positive number of seconds, got {args.window}")
-    if args.simulated is not None and args.params is not None:
-        raise InputError("--params is only used when SIMULATED.csv is not given "
-                         "(the measured run is then simulated with it)")
+    if args.simulated is not None and (args.params is not None or args.contact is not None):
+        raise InputError("--params and --contact are only used when SIMULATED.csv is not given "
+                         "(the measured run is then simulated with them)")
     paths = plot_paths(args.plots, args.force) if args.plots else None
     measured = read_run(args.measured)
     inputs: dict[str, Any] = {"measured": str(measured.source)}
@@ -107,13 +108,14 @@ def run(args: argparse.Namespace) -> int:
         inputs["simulated"] = str(simulated.source)
         heading = f"compare {measured.source} (measured) with {simulated.source} (simulated)"
     else:
-        params = load_params(args.params)
+        params = load_params(args.params, args.contact)
         with progress_bar("simulating") as bar:
             simulated = simulate_like(measured, params=params, progress=bar)
         inputs["simulated"] = None
         inputs["params"] = args.params or "nominal"
         heading = (f"compare {measured.source} (measured) with its simulation "
-                   f"({f'parameters {args.params}' if args.params else 'nominal parameters'})")
+                   f"({f'parameters {args.params}' if args.params else 'nominal parameters'}, "
+                   f"{params.contact_law} contact law)")
     report = compare_runs(measured, simulated, window_s=args.window)
     if args.json:
         print(json.dumps({**report.to_json_dict(), "inputs": inputs}, indent=2))

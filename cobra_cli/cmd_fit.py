@@ -6,9 +6,10 @@ import json
 from pathlib import Path
 
 from cobra_cli.cmd_check import check_before_fit
-from cobra_cli.common import check_writable, load_params, parse_names
+from cobra_cli.common import add_contact_option, check_writable, load_params, parse_names
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
+from sysid.identification.contact_choice import free_for_law, unread_by_law
 from sysid.identification.executor import make_executor
 from sysid.identification.fit_report import fit_document, write_fit_report
 from sysid.identification.lsq import FitResult
@@ -25,6 +26,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=("lsq", "ppo"), default="lsq", help="least squares (default) or PPO")
     p.add_argument("--holdout", nargs="*", default=[], metavar="RUN", help="held-out runs (added to a manifest's)")
     p.add_argument("--params", help="starting parameter file (default: nominal)")
+    add_contact_option(p, "fit")
     p.add_argument("--free", help="comma-separated names to tune (default: every parameter not frozen)")
     p.add_argument("--frozen", help="comma-separated names to hold fixed")
     p.add_argument("--budget-seconds", type=float, default=None, help="wall-time budget [s]")
@@ -70,12 +72,21 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--report {report_dir}: exists and is not a directory")
         if report_dir.exists():
             check_writable(report_dir / "report.html", args.force)
-    start = load_params(args.params)
+    start = load_params(args.params, args.contact)
     free, frozen = parse_names(args.free, "--free"), parse_names(args.frozen, "--frozen")
     try:
         params = start.with_frozen(frozen=frozen, free=free or None)
     except InputError as exc:
         raise InputError(f"--free/--frozen: {exc}") from None
+    unread = unread_by_law(params, free)
+    if unread:
+        raise InputError(f"--free {','.join(unread)}: the {params.contact_law} contact law does not read "
+                         f"{'it' if len(unread) == 1 else 'them'} (--contact chooses the law)")
+    if not free:
+        params, changed = free_for_law(params)
+        params = params.with_frozen(frozen=frozen)  # the user's --frozen still holds
+        if changed:
+            print(changed)
     train_paths, val_paths = expand(args.runs)
     val_paths += [Path(p) for p in args.holdout]
     if not train_paths:
@@ -90,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--current: only least squares fits the motor current (--method lsq)")
     objective = Objective(train, params, Weights(use_current=args.current), executor=executor)
     print(f"fitting {', '.join(params.free_names)} on {len(train)} runs ({len(validation)} held out) "
-          f"by {args.method}")
+          f"by {args.method}, {params.contact_law} contact law")
     from tqdm import tqdm
     bar = tqdm(desc=args.method, unit="it", leave=False, disable=None)
 

@@ -5,14 +5,14 @@ import argparse
 
 import numpy as np
 
-from cobra_cli.common import check_run_writable, load_params
+from cobra_cli.common import add_contact_option, check_run_writable, load_params
 from cobra_cli.progress import progress_bar
 from cobra_model.errors import InputError
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.run_files import read_run, write_run
 from integrators.simulate import simulate_gait, simulate_like
-from integrators.simulator import CONTACT_LAWS, SCHEMES, SimSettings, Simulator
+from integrators.simulator import SCHEMES, SimSettings, Simulator
 from sysid.discrepancy.effects import EffectLibrary, parse_effects
 
 
@@ -32,10 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scheme", choices=SCHEMES, default="velocity",
                    help="physics step: 'velocity' (semi-implicit Euler, the fits' step) or 'momentum' "
                         "(symplectic Euler on the momentum: bounded energy error, ~20x the cost) (default velocity)")
-    p.add_argument("--contact", choices=CONTACT_LAWS, default="compliant",
-                   help="contact law: 'compliant' (spring-damper ground, Stribeck friction) or 'soft_constraint' "
-                        "(MuJoCo's: a soft constraint on the friction pyramid, time constant from the parameter "
-                        "contact_time_constant) (default compliant)")
+    add_contact_option(p, "simulate")
     p.add_argument("--heading", type=float, default=0.0, help="initial heading [deg] (default 0)")
     p.add_argument("--rate", type=float, default=100.0, help="output sample rate [Hz] (default 100)")
     p.add_argument("--effect", action="append", default=[], metavar="NAME=VALUE[,NAME=VALUE]",
@@ -47,14 +44,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     out = check_run_writable(args.out, args.force)
-    params = load_params(args.params)
+    params = load_params(args.params, args.contact)
     if args.effect:
         params = EffectLibrary().transform(params, parse_effects(args.effect), frozen=True)
     try:
-        settings = SimSettings(dt=args.dt, control_dt=args.control_dt or args.dt, scheme=args.scheme,
-                               contact=args.contact)
+        settings = SimSettings(dt=args.dt, control_dt=args.control_dt or args.dt, scheme=args.scheme)
     except ValueError as exc:
-        raise InputError(f"--dt/--control-dt/--scheme/--contact: {exc}") from None
+        raise InputError(f"--dt/--control-dt/--scheme: {exc}") from None
     if args.duration <= 0:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
     sim = Simulator(CobraModel.load(), params, settings)

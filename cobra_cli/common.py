@@ -1,15 +1,27 @@
 """Helpers shared by the subcommands: loading parameters, refusing to overwrite outputs."""
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from cobra_model.errors import InputError
-from cobra_model.parameters import ModelParameters
+from cobra_model.parameters import CONTACT_LAWS, ModelParameters
 
 
-def load_params(path: str | Path | None) -> ModelParameters:
-    """The parameter file at ``path``, or the nominal parameters when None."""
-    return ModelParameters.nominal() if path is None else ModelParameters.load(path)
+def load_params(path: str | Path | None, contact_law: str | None = None) -> ModelParameters:
+    """The parameter file at ``path`` (nominal parameters when None), under ``contact_law`` if
+    given, else under the file's law (the nominal set's: compliant)."""
+    params = ModelParameters.nominal() if path is None else ModelParameters.load(path)
+    return params if contact_law is None else params.with_contact_law(contact_law)
+
+
+def add_contact_option(p: argparse.ArgumentParser, what: str) -> None:
+    """``--contact LAW``: the contact law to {what} with, overriding the parameter file's."""
+    p.add_argument("--contact", choices=CONTACT_LAWS, default=None,
+                   help=f"contact law to {what} with: 'compliant' (spring-damper ground, Stribeck friction) or "
+                        "'soft_constraint' (MuJoCo's: a soft constraint on the friction pyramid, time constant "
+                        "from the parameter contact_time_constant) (default: the parameter file's law, which a "
+                        "fit records; compliant for the nominal parameters)")
 
 
 def check_writable(path: str | Path, force: bool) -> Path:

@@ -130,6 +130,13 @@ NOMINAL: tuple[Parameter, ...] = (
 
 _NOMINAL_BY_NAME: dict[str, Parameter] = {p.name: p for p in NOMINAL}
 
+#: The ground-contact laws a model can have (``integrators.simulator`` implements them):
+#: ``compliant``, a spring-damper normal force with Coulomb/static/viscous (Stribeck) friction on
+#: it, and ``soft_constraint``, MuJoCo's soft constraint on the friction pyramid's edges. The law is
+#: part of the model's structure: a parameter set carries it (:attr:`ModelParameters.contact_law`),
+#: because its ground values mean something only under that law.
+CONTACT_LAWS: tuple[str, ...] = ("compliant", "soft_constraint")
+
 #: Parameters that may be expanded to one value per joint.
 PER_JOINT_CAPABLE: tuple[str, ...] = ("armature", "joint_damping", "motor_km")
 
@@ -138,12 +145,19 @@ class ModelParameters:
     """An ordered, immutable set of :class:`Parameter` objects.
 
     Values are read by name as attributes (``p.mu_c``) or with :meth:`value`; vectors contain
-    only the free (not frozen) parameters, in table order.
+    only the free (not frozen) parameters, in table order. :attr:`contact_law` is the ground-contact
+    law (one of :data:`CONTACT_LAWS`) the values belong to; every derived set keeps it.
+
+    Raises:
+        InputError: for duplicate names, ``mu_s < mu_c`` or an unknown contact law.
     """
 
-    __slots__ = ("_params", "_index")
+    __slots__ = ("_params", "_index", "contact_law")
 
-    def __init__(self, params: Iterable[Parameter]):
+    def __init__(self, params: Iterable[Parameter], contact_law: str = "compliant"):
+        if contact_law not in CONTACT_LAWS:
+            raise InputError(f"contact law must be one of {', '.join(CONTACT_LAWS)}, got {contact_law!r}")
+        object.__setattr__(self, "contact_law", contact_law)
         object.__setattr__(self, "_params", tuple(params))
         index = {p.name: i for i, p in enumerate(self._params)}
         if len(index) != len(self._params):
@@ -176,7 +190,7 @@ class ModelParameters:
 
     def __reduce__(self) -> tuple:
         """Pickle as the constructor call (for process and Ray executors)."""
-        return (ModelParameters, (self._params,))
+        return (ModelParameters, (self._params, self.contact_law))
 
     def __iter__(self) -> Iterator[Parameter]:
         return iter(self._params)
@@ -188,14 +202,15 @@ class ModelParameters:
         return name in self._index
 
     def __eq__(self, other: object) -> bool:
-        return isinstance(other, ModelParameters) and self._params == other._params
+        return (isinstance(other, ModelParameters) and self._params == other._params
+                and self.contact_law == other.contact_law)
 
     def __hash__(self) -> int:
-        return hash(self._params)
+        return hash((self._params, self.contact_law))
 
     def __repr__(self) -> str:
         inner = ", ".join(f"{p.name}={p.value:.6g}" for p in self._params)
-        return f"ModelParameters({inner})"
+        return f"ModelParameters({inner}, contact_law={self.contact_law!r})"
 
     def __getitem__(self, name: str) -> Parameter:
         try:
@@ -244,11 +259,19 @@ class ModelParameters:
         return np.array([self.get(f"{name}_{k}", shared) for k in range(1, design.NUM_JOINTS + 1)])
 
     # -- derived sets -------------------------------------------------------------------------
+    def _derived(self, params: Iterable[Parameter]) -> "ModelParameters":
+        """A set of ``params`` under this set's contact law."""
+        return ModelParameters(params, self.contact_law)
+
+    def with_contact_law(self, law: str) -> "ModelParameters":
+        """A copy under contact law ``law`` (one of :data:`CONTACT_LAWS`), values unchanged."""
+        return ModelParameters(self._params, law)
+
     def with_values(self, **values: float) -> "ModelParameters":
         """A copy with the given values (bounds are checked)."""
         for name in values:
             self[name]  # raises a clear error for unknown names
-        return ModelParameters(
+        return self._derived(
             replace(p, value=float(values[p.name])) if p.name in values else p for p in self._params
         )
 
@@ -262,13 +285,13 @@ class ModelParameters:
             if p.name in frozen:
                 return True
             return p.frozen if free_set is None else p.name not in free_set
-        return ModelParameters(replace(p, frozen=is_frozen(p)) for p in self._params)
+        return self._derived(replace(p, frozen=is_frozen(p)) for p in self._params)
 
     def with_parameters(self, extra: Iterable[Parameter]) -> "ModelParameters":
         """A copy with parameters added (or replaced by name), e.g. those of a model effect."""
         extra = list(extra)
         names = {p.name for p in extra}
-        return ModelParameters([p for p in self._params if p.name not in names] + extra)
+        return self._derived([p for p in self._params if p.name not in names] + extra)
 
     def with_per_joint(self, name: str) -> "ModelParameters":
         """Replace shared actuator parameter ``name`` by ``name_1`` .. ``name_11`` (same value)."""
@@ -322,9 +345,11 @@ class ModelParameters:
 
     # -- files ------------------------------------------------------------------------------
     def to_json_dict(self) -> dict[str, Any]:
-        """The parameter-file object: ``{"format", "parameters": {name: {value, unit, min, max, frozen, ...}}}``."""
+        """The parameter-file object: ``{"format", "contact_law", "parameters": {name: {value, unit, min,
+        max, frozen, ...}}}``."""
         return {
             "format": PARAMS_FORMAT,
+            "contact_law": self.contact_law,
             "parameters": {
                 p.name: {
                     "value": p.value, "unit": p.unit, "min": p.min, "max": p.max,
@@ -337,16 +362,21 @@ class ModelParameters:
     @classmethod
     def from_json_dict(cls, data: Mapping[str, Any], *, source: str = "<parameters>") -> "ModelParameters":
         """Parse a parameter-file object; names not in the nominal table must give unit and bounds.
+        A file without ``contact_law`` (written before the law was recorded) is ``compliant``.
 
         Raises:
             InputError: naming ``source`` and the parameter, for a missing ``parameters`` object,
-                an unknown name without unit/bounds, a non-numeric or out-of-bound value.
+                an unknown name without unit/bounds, a non-numeric or out-of-bound value, or an
+                unknown ``contact_law``.
         """
         if not isinstance(data, Mapping) or not isinstance(data.get("parameters"), Mapping):
             raise InputError(f"{source}: expected a JSON object with a \"parameters\" object")
         fmt = data.get("format", PARAMS_FORMAT)
         if fmt != PARAMS_FORMAT:
             raise InputError(f"{source}: format is {fmt!r}, expected {PARAMS_FORMAT!r}")
+        law = data.get("contact_law", "compliant")
+        if law not in CONTACT_LAWS:
+            raise InputError(f"{source}: \"contact_law\" is {law!r}, expected one of {', '.join(CONTACT_LAWS)}")
         known = {p.name: p for p in NOMINAL}
         params: list[Parameter] = []
         for name, entry in data["parameters"].items():
@@ -378,7 +408,7 @@ class ModelParameters:
             except InputError as exc:
                 raise InputError(f"{source}: {exc}") from None
         try:
-            return cls(params)
+            return cls(params, law)
         except InputError as exc:
             raise InputError(f"{source}: {exc}") from None
 

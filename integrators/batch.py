@@ -47,6 +47,9 @@ class BatchSimulator:
         if settings is not None and settings.scheme != "velocity":
             raise InputError(f"batched rollouts use the velocity-form step; scheme {settings.scheme!r} is for "
                              f"single rollouts (Simulator.rollout)")
+        laws = sorted({p.contact_law for p in params})
+        if len(laws) > 1:
+            raise InputError(f"a batch steps one contact law; the parameter sets have {', '.join(laws)}")
         self.sims = [Simulator(model, p, settings) for p in params]
         first = self.sims[0]
         self.settings = first.settings
@@ -117,7 +120,7 @@ class BatchSimulator:
         KR = np.empty((n, len(self.model.chain.parents), 3, 3))  # kernel workspace
         KV = np.empty((n, len(self.model.chain.parents), 6, 3))
         on = np.ones(self.model.n_joints, dtype=np.bool_)
-        soft = s.contact == "soft_constraint"
+        soft = self._first.contact_law == "soft_constraint"
         if soft:
             nv = self.model.nv
             MINV = np.empty((n, nv, nv))

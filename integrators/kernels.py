@@ -53,6 +53,15 @@ GROUND_PARAMETERS: dict[str, int] = {
     "lateral_friction_ratio": G_LATERAL, "friction_cone": G_CONE, "contact_rounding": G_ROUND,
     "contact_time_constant": G_TC,
 }
+#: The ground parameters each contact law reads (``cobra_model.parameters.CONTACT_LAWS``); the
+#: others do not enter its forces. The soft-constraint law's normal stiffness and damping are
+#: its time constant (``soft_contact_acceleration``); it has no Stribeck or viscous term and its
+#: friction limit is the pyramid, not ``friction_cone``.
+CONTACT_LAW_PARAMETERS: dict[str, tuple[str, ...]] = {
+    "compliant": ("k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", "lateral_friction_ratio", "friction_cone",
+                  "contact_rounding"),
+    "soft_constraint": ("mu_c", "lateral_friction_ratio", "contact_time_constant", "contact_rounding"),
+}
 #: Where a per-joint parameter lands in ``act`` (packed with :meth:`ModelParameters.per_joint`).
 #: ``A_RKM`` (the motor constant times the gear ratio) and the settings' ``A_COULOMB_EPS`` are
 #: packed by the simulator itself.

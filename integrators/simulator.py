@@ -109,8 +109,6 @@ class ServoGains:
 
 #: The physics steps :class:`SimSettings` offers.
 SCHEMES = ("velocity", "momentum")
-#: The contact laws :class:`SimSettings` offers.
-CONTACT_LAWS = ("compliant", "soft_constraint")
 
 
 @dataclass(frozen=True)
@@ -129,14 +127,6 @@ class SimSettings:
         scheme: ``"velocity"`` (the step above; batched fits use it) or ``"momentum"``
             (:mod:`integrators.momentum_step`: symplectic Euler on the momentum, bounded energy
             error, about 20 times the cost; single rollouts only).
-        contact: ``"compliant"`` (the spring-damper ground with the Stribeck friction law,
-            :func:`integrators.kernels.ground_forces`; batched fits use it) or
-            ``"soft_constraint"`` (MuJoCo's contact law: a soft constraint on the friction
-            pyramid's edges, solved for all contacts together,
-            :func:`integrators.kernels.soft_contact_acceleration`; sliding friction ``mu_c``
-            along the body and ``lateral_friction_ratio`` x ``mu_c`` sideways, no Stribeck or
-            viscous term, ``k1``/``k2`` unused, the time constant the parameter
-            ``contact_time_constant``; velocity-form steps, about twice the cost).
     """
 
     dt: float = 1e-3
@@ -148,17 +138,12 @@ class SimSettings:
     max_depth: float = 0.03
     max_speed: float = 100.0
     scheme: str = "velocity"
-    contact: str = "compliant"
 
     def __post_init__(self) -> None:
         if not self.dt > 0:
             raise ValueError(f"dt must be > 0 s, got {self.dt}")
         if self.scheme not in SCHEMES:
             raise ValueError(f"scheme must be one of {', '.join(SCHEMES)}, got {self.scheme!r}")
-        if self.contact not in CONTACT_LAWS:
-            raise ValueError(f"contact must be one of {', '.join(CONTACT_LAWS)}, got {self.contact!r}")
-        if self.contact == "soft_constraint" and self.scheme != "velocity":
-            raise ValueError(f"the soft_constraint contact runs with the velocity scheme, got {self.scheme!r}")
         ratio = self.control_dt / self.dt
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError(
@@ -219,10 +204,23 @@ def delay_commands(table: np.ndarray, delay_s: float, control_dt: float) -> np.n
 class Simulator:
     """Immutable simulator of one robot model with one parameter set.
 
+    The ground-contact law is the parameter set's (``params.contact_law``, one of
+    :data:`cobra_model.parameters.CONTACT_LAWS`): ``"compliant"``, the spring-damper ground with
+    the Stribeck friction law (:func:`integrators.kernels.ground_forces`), or ``"soft_constraint"``,
+    MuJoCo's contact law: a soft constraint on the friction pyramid's edges, solved for all
+    contacts together (:func:`integrators.kernels.soft_contact_acceleration`); sliding friction
+    ``mu_c`` along the body and ``lateral_friction_ratio`` x ``mu_c`` sideways, no Stribeck or
+    viscous term, ``k1``/``k2`` unused, its time constant the parameter ``contact_time_constant``;
+    velocity-form steps only, about twice the cost.
+
     Args:
         model: the robot (COBRA or any URDF loaded by :class:`RobotModel`).
-        params: physical parameters (actuator, ground, optional effects).
+        params: physical parameters (actuator, ground, optional effects) and the contact law.
         settings: numerical settings.
+
+    Raises:
+        InputError: the soft-constraint law with the momentum scheme, or a contact time
+            constant shorter than two steps.
     """
 
     def __init__(self, model: RobotModel, params: ModelParameters | None = None,
@@ -243,7 +241,10 @@ class Simulator:
         for name, slot in K.GROUND_PARAMETERS.items():
             ground[slot] = effect_value(p, name)
         ground[K.G_EPS] = s.sgn_eps
-        if s.contact == "soft_constraint":
+        self.contact_law = p.contact_law
+        if self.contact_law == "soft_constraint":
+            if s.scheme != "velocity":
+                raise InputError(f"the soft_constraint contact law runs with the velocity scheme, got {s.scheme!r}")
             # the compliant ground off (no normal force, hence no friction in the force kernels):
             # the contact forces come from the constraint (soft_contact_acceleration)
             ground[[K.G_K1, K.G_K2, K.G_MU_V]] = 0.0
@@ -372,7 +373,7 @@ class Simulator:
     def _advance(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray, v_out: np.ndarray) -> int:
         """The rigid body's step under generalized force ``tau`` by ``settings.scheme`` (with the
         soft-constraint contact forces if that is the contact law); a kernel status."""
-        if self.settings.contact == "soft_constraint":
+        if self.contact_law == "soft_constraint":
             a = np.empty(self.model.nv)
             K.soft_contact_acceleration(v, tau, pin.computeMinverse(self._pin, self._data, q),
                                         pin.nonLinearEffects(self._pin, self._data, q, v), self.model.chain.floating,
@@ -452,7 +453,7 @@ class Simulator:
         pinm, data = self._pin, self._data
         report_every = max(1, n_steps // 100)
         pre, post, aba = K.pre_step, K.post_step, pin.aba
-        advance = None if self._momentum is None and s.contact == "compliant" else self._advance
+        advance = None if self._momentum is None and self.contact_law == "compliant" else self._advance
         for i in range(n_steps + 1):
             goal = goals[i // sub]
             if i % record_every == 0:

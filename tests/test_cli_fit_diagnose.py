@@ -143,3 +143,34 @@ def test_diagnose_on_joint_only_runs_judges_on_the_joints(joint_only, tmp_path, 
     assert "head not measured: joint-only runs" in doc["verdict"]
     assert doc["gap_after"]["mean"]["head_final_error_m"] is None
     assert doc["gap_after"]["mean"]["joint_rmse_rad"] < 1e-3
+
+
+@pytest.fixture(scope="module")
+def soft_data(tmp_path_factory) -> tuple[list[Path], Path]:
+    """Runs of the soft-constraint contact law with a slower contact (30 ms) and mu_c = 0.22."""
+    d = tmp_path_factory.mktemp("soft_runs")
+    truth = TRUTH.with_values(contact_time_constant=0.03).with_contact_law("soft_constraint")
+    paths = [write_run(simulate_gait(SidewindingGait(f, ramp_s=0.5), 3.0, params=truth, heading_rad=h,
+                                     sample_rate_hz=50), d / f"soft{i}.csv")
+             for i, (f, h) in enumerate(((0.5, 0.0), (0.65, 1.0), (0.35, 2.0)))]
+    return paths[:2], paths[2]
+
+
+@pytest.mark.slow
+def test_fit_under_the_soft_law_records_it_and_compare_uses_it(soft_data, tmp_path, capsys):
+    """``cobra fit --contact soft_constraint`` frees the law's own time constant, freezes what the
+    law does not read, recovers the ground, and writes a file whose law ``cobra compare`` uses."""
+    train, hold = soft_data
+    out = tmp_path / "soft_fit.json"
+    assert main(["fit", *map(str, train), "--contact", "soft_constraint", "--free", "k1", "--out", str(out)]) == 2
+    assert "--free k1: the soft_constraint contact law does not read it" in capsys.readouterr().err
+    assert main(["fit", *map(str, train), "--contact", "soft_constraint", "--frozen", "armature,joint_damping,motor_km",
+                 "--max-iterations", "6", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "soft_constraint contact law: k1, k2, mu_s, mu_v, v_s do not enter it (frozen)" in printed
+    fitted = ModelParameters.load(out)
+    assert fitted.contact_law == "soft_constraint" and fitted.free_names == ("mu_c", "contact_time_constant")
+    assert abs(fitted.mu_c - 0.22) < 0.01 and abs(fitted.contact_time_constant - 0.03) < 0.0045  # 15 %
+    assert main(["compare", str(hold), "--params", str(out), "--json"]) == 0
+    report = json.loads(capsys.readouterr().out)
+    assert report["head_final_error_m"] < 0.01               # the law and values of the truth predict it

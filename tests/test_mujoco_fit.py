@@ -17,7 +17,6 @@ from cobra_model import design
 from cobra_model.parameters import ModelParameters
 from integrators.simulate import simulate_like
 from sysid.generators.dataset import RunPlan
-from integrators.simulator import SimSettings
 from sysid.identification.contact_choice import choose_contact_law
 from sysid.identification.lsq import fit_lsq
 from sysid.gap.metrics import compare_runs
@@ -53,8 +52,8 @@ def fit(objective):
 
 
 def gaps_of(runs, named_params):
-    return {name: [compare_runs(run, simulate_like(run, params=p, settings=settings)).to_json_dict() for run in runs]
-            for name, (p, settings) in named_params.items()}
+    return {name: [compare_runs(run, simulate_like(run, params=p)).to_json_dict() for run in runs]
+            for name, p in named_params.items()}
 
 
 @pytest.fixture(scope="module")
@@ -66,8 +65,7 @@ def case(cobra):
     start = ModelParameters.nominal()
     choice = choose_contact_law(train, valid, start, fit=fit)
     fits = {f.law: f.fit for f in choice.fits}
-    gaps = gaps_of(hold, {"nominal": (start, SimSettings()),
-                          **{law: (r.params, SimSettings(contact=law)) for law, r in fits.items()}})
+    gaps = gaps_of(hold, {"nominal": start, **{law: r.params for law, r in fits.items()}})
     return choice, fits, gaps
 
 
@@ -76,7 +74,7 @@ def stiff_case(cobra):
     train, hold, _ = runs_of(cobra, stiff_contact)
     start = ModelParameters.nominal().with_frozen(free=FREE)
     result = fit(Objective(train, start, Weights()))
-    return result, gaps_of(hold, {"nominal": (start, SimSettings()), "fitted": (result.params, SimSettings())})
+    return result, gaps_of(hold, {"nominal": start, "fitted": result.params})
 
 
 def test_the_compliant_fit_finds_mujocos_contact_shapes(case):

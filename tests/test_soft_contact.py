@@ -1,4 +1,4 @@
-"""The soft-constraint contact law (``SimSettings(contact="soft_constraint")``): MuJoCo's contact.
+"""The soft-constraint contact law (``params.with_contact_law("soft_constraint")``): MuJoCo's contact.
 
 Its pieces are checked against independent references (the edge rows against Pinocchio's frame
 Jacobians, the force solver against brute-force enumeration, the impedance against MuJoCo's
@@ -25,7 +25,9 @@ from integrators.batch import BatchSimulator
 from integrators.simulator import SimSettings, Simulator
 from sysid.generators.mujoco_recording import rollout, twin_counterpart, twin_options
 
-SOFT = SimSettings(contact="soft_constraint")
+def soft(params: ModelParameters) -> ModelParameters:
+    """``params`` under the soft-constraint law."""
+    return params.with_contact_law("soft_constraint")
 
 
 def test_impedance_is_mujocos_default_solimp():
@@ -60,7 +62,7 @@ def test_nonnegative_qp_solves_the_lcp_exactly():
 
 
 def test_edge_rows_are_pinocchios_contact_jacobian(cobra):
-    sim = Simulator(cobra, ModelParameters.nominal(), SOFT)
+    sim = Simulator(cobra, soft(ModelParameters.nominal()))
     rng = np.random.default_rng(0)
     q = sim.rest_state(rng.uniform(-0.5, 0.5, cobra.n_joints), heading_rad=0.7).q
     q[2] -= 0.004                                             # every lowest point touches
@@ -94,7 +96,7 @@ def test_at_rest_the_constraint_holds_the_weight_pushing_only(cobra):
     as in MuJoCo, far less than the constraint's 1 mm impedance width; no velocity is left and
     every edge force is >= 0."""
     params = twin_counterpart(ModelParameters.nominal())
-    sim = Simulator(cobra, params, SOFT)
+    sim = Simulator(cobra, soft(params))
     q_joints = np.zeros(cobra.n_joints)
     traj = sim.rollout(sim.rest_state(q_joints), np.tile(q_joints, (10, 1)), 2.0, record_every=100)
     assert np.abs(traj.v[-1]).max() < 1e-3
@@ -105,10 +107,14 @@ def test_at_rest_the_constraint_holds_the_weight_pushing_only(cobra):
 
 def test_bad_soft_settings_are_refused(cobra):
     with pytest.raises(InputError, match="contact_time_constant = 0.003 s: the soft-constraint contact needs at least"):
-        Simulator(cobra, ModelParameters.nominal().with_values(contact_time_constant=0.003),
-                  SimSettings(contact="soft_constraint", dt=0.002, control_dt=0.002))
-    with pytest.raises(ValueError, match="contact must be one of compliant, soft_constraint"):
-        SimSettings(contact="rigid")
+        Simulator(cobra, soft(ModelParameters.nominal().with_values(contact_time_constant=0.003)),
+                  SimSettings(dt=0.002, control_dt=0.002))
+    with pytest.raises(InputError, match="soft_constraint contact law runs with the velocity scheme, got 'momentum'"):
+        Simulator(cobra, soft(ModelParameters.nominal()), SimSettings(scheme="momentum"))
+    with pytest.raises(InputError, match="contact law must be one of compliant, soft_constraint, got 'rigid'"):
+        ModelParameters.nominal().with_contact_law("rigid")
+    with pytest.raises(InputError, match="a batch steps one contact law; the parameter sets have compliant, soft_constraint"):
+        BatchSimulator(cobra, [ModelParameters.nominal(), soft(ModelParameters.nominal())])
 
 
 @pytest.mark.slow
@@ -124,7 +130,7 @@ def test_the_soft_law_follows_mujocos_default_contact(cobra):
     mujoco = qm[-1, :2]
     finals = {}
     for contact in ("compliant", "soft_constraint"):
-        sim = Simulator(cobra, ours, SimSettings(contact=contact))
+        sim = Simulator(cobra, ours.with_contact_law(contact))
         finals[contact] = sim.rollout(sim.state(q0), gait.q_ref, duration, record_every=3000).q[-1, :2]
     gap = {c: np.linalg.norm(h - mujoco) for c, h in finals.items()}
     assert np.linalg.norm(mujoco - q0[:2]) > 0.3                       # it sidewinds
@@ -136,14 +142,14 @@ def test_batched_soft_rollouts_are_the_single_ones(cobra):
     """Environments with different friction, time constants and armature (two model groups)
     step exactly as single rollouts do."""
     gait = SidewindingGait(0.5)
-    nominal = twin_counterpart(ModelParameters.nominal())
+    nominal = soft(twin_counterpart(ModelParameters.nominal()))
     params = [nominal, nominal.with_values(mu_c=0.4, mu_s=0.4, contact_time_constant=0.005),
               nominal.with_values(armature=0.05, contact_time_constant=0.04)]
-    sims = [Simulator(cobra, p, SOFT) for p in params]
+    sims = [Simulator(cobra, p) for p in params]
     states = [sim.rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=0.3 * k) for k, sim in enumerate(sims)]
     duration = 1.5
     goals = sims[0].commands(gait.q_ref, 0.0, int(round(duration / 1e-3)) + 1)
-    batch = BatchSimulator(cobra, params, SOFT)
+    batch = BatchSimulator(cobra, params)
     Q, _, _, _, _ = batch.rollout(states, np.repeat(goals[:, None], 3, axis=1), duration)
     for k, sim in enumerate(sims):
         single = sim.rollout(states[k], goals, duration, record_every=1500).q[-1]
@@ -159,11 +165,46 @@ def test_cobra_simulate_takes_the_contact_law(tmp_path):
     for law in ("compliant", "soft_constraint"):
         assert main(["simulate", "--duration", "2", "--contact", law, "--out", str(tmp_path / f"{law}.csv")]) == 0
         run = read_run(tmp_path / f"{law}.csv")
-        assert run.meta["sim_settings"]["contact"] == law
+        assert run.meta["params"]["contact_law"] == law
         heads[law] = run.head_pos[-1, :2]
     # two contact laws of one robot: both sidewind, not along the same path
     assert np.linalg.norm(heads["soft_constraint"]) > 0.1
     assert np.linalg.norm(heads["soft_constraint"] - heads["compliant"]) > 1e-3
+
+
+def test_the_contact_law_travels_with_the_parameter_file(tmp_path):
+    """A parameter file records its law: a fit under the soft law and every command that simulates
+    with that file use it; ``--contact`` overrides it; a file of before the law was recorded is
+    compliant; an unknown law names the file and the key."""
+    import json
+    import pickle
+
+    from cobra_cli.main import main
+    from cobra_model.run_files import read_run
+
+    params = soft(ModelParameters.nominal())
+    derived = params.with_values(mu_c=0.3).with_frozen(free=["mu_c"]).update_from_vector(np.array([0.25]))
+    assert derived.contact_law == "soft_constraint" and pickle.loads(pickle.dumps(derived)) == derived
+    assert derived != derived.with_contact_law("compliant")
+    path = params.save(tmp_path / "soft.json")
+    assert ModelParameters.load(path).contact_law == "soft_constraint"
+    runs = {}
+    for name, extra in (("file", ["--params", str(path)]), ("option", ["--contact", "soft_constraint"]),
+                        ("override", ["--params", str(path), "--contact", "compliant"])):
+        out = tmp_path / f"{name}.csv"
+        assert main(["simulate", "--duration", "1", "--out", str(out), *extra]) == 0
+        runs[name] = read_run(out)
+    np.testing.assert_array_equal(runs["file"].head_pos, runs["option"].head_pos)
+    assert runs["override"].meta["params"]["contact_law"] == "compliant"
+    assert np.abs(runs["override"].head_pos[-1] - runs["file"].head_pos[-1]).max() > 1e-4
+    doc = json.loads(path.read_text())
+    del doc["contact_law"]
+    (tmp_path / "old.json").write_text(json.dumps(doc))
+    assert ModelParameters.load(tmp_path / "old.json").contact_law == "compliant"
+    doc["contact_law"] = "rigid"
+    (tmp_path / "bad.json").write_text(json.dumps(doc))
+    with pytest.raises(InputError, match=r"bad.json: \"contact_law\" is 'rigid', expected one of compliant, soft_constraint"):
+        ModelParameters.load(tmp_path / "bad.json")
 
 
 def test_choosing_a_contact_law_needs_held_out_runs_and_known_laws():

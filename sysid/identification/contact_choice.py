@@ -1,7 +1,7 @@
 """Choosing the contact law on held-out runs: fit each law, keep the one that predicts best.
 
 A robot's ground contact differs from any model in structure, not only in parameter values
-(``docs/model.md``). The simulator offers two contact laws (``SimSettings.contact``): the
+(``docs/model.md``). The simulator offers two contact laws (``ModelParameters.contact_law``): the
 compliant ground (a spring-damper normal force with the paper's Coulomb/Stribeck friction on it)
 and the soft-constraint law (a contact is a constraint whose approach, penetration and slip relax
 with a time constant, friction on a pyramid's edges, all contacts solved together: MuJoCo's).
@@ -16,25 +16,48 @@ from dataclasses import dataclass
 from typing import Callable, Sequence
 
 from cobra_model.errors import InputError
-from cobra_model.parameters import ModelParameters
+from cobra_model.parameters import CONTACT_LAWS, ModelParameters
 from cobra_model.run import Run
-from integrators.simulator import CONTACT_LAWS, SimSettings
+from integrators.kernels import CONTACT_LAW_PARAMETERS
 from sysid.identification.lsq import FitResult, fit_lsq
 from sysid.identification.objective import Objective, Weights
 
 #: Free parameters of each law's base fit: the actuator's damping and motor constant, and the
-#: ground parameters the law reads (the soft-constraint law has no normal spring, Stribeck or
-#: viscous term and its friction limit is the pyramid; its time constant replaces them).
+#: nominal table's ground parameters the law reads (:data:`integrators.kernels.CONTACT_LAW_PARAMETERS`;
+#: the soft-constraint law has no normal spring, Stribeck or viscous term and its friction limit is
+#: the pyramid; its time constant replaces them).
 LAW_FREE: dict[str, tuple[str, ...]] = {
-    "compliant": ("joint_damping", "motor_km", "k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", "friction_cone",
-                  "contact_rounding"),
-    "soft_constraint": ("joint_damping", "motor_km", "mu_c", "contact_time_constant", "contact_rounding"),
+    law: ("joint_damping", "motor_km", *(n for n in reads if n in ModelParameters.nominal()))
+    for law, reads in CONTACT_LAW_PARAMETERS.items()
 }
+
+
+def unread_by_law(params: ModelParameters, names: Sequence[str]) -> list[str]:
+    """Those of ``names`` that are ground parameters ``params``' contact law does not read."""
+    ground = {n for reads in CONTACT_LAW_PARAMETERS.values() for n in reads}
+    return [n for n in names if n in ground and n not in CONTACT_LAW_PARAMETERS[params.contact_law]]
+
+
+def free_for_law(params: ModelParameters) -> tuple[ModelParameters, str | None]:
+    """``params`` with its free set fitted to its contact law, and a line saying what changed
+    (None if nothing did): free ground parameters the law does not read are frozen (no data can
+    move them), and under the soft-constraint law ``contact_time_constant`` is freed, since it is
+    that law's normal stiffness and damping as ``k1`` and ``k2`` are the compliant ground's."""
+    frozen = unread_by_law(params, params.free_names)
+    freed = ["contact_time_constant"] if (params.contact_law == "soft_constraint"
+                                          and "contact_time_constant" not in params.free_names) else []
+    if not frozen and not freed:
+        return params, None
+    adapted = params.with_frozen(frozen=frozen, free=[n for n in params.free_names if n not in frozen] + freed)
+    parts = ([f"{', '.join(frozen)} do not enter it (frozen)"] if frozen else []) + \
+            ([f"{', '.join(freed)} freed (its normal stiffness and damping)"] if freed else [])
+    return adapted, f"{params.contact_law} contact law: {'; '.join(parts)}"
 
 
 @dataclass(frozen=True)
 class LawFit:
-    """One contact law's fit and its cost on the held-out runs (the objective's, same weights)."""
+    """One contact law's fit (its parameters carry the law) and its cost on the held-out runs
+    (the objective's, same weights)."""
 
     law: str
     fit: FitResult
@@ -58,11 +81,6 @@ class ContactChoice:
         """The chosen law's fit."""
         return next(f for f in self.fits if f.law == self.chosen)
 
-    @property
-    def settings(self) -> SimSettings:
-        """Simulator settings with the chosen law."""
-        return SimSettings(contact=self.chosen)
-
     def to_json(self) -> dict:
         return {"chosen": self.chosen, "fits": [f.to_json() for f in self.fits]}
 
@@ -77,7 +95,7 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
         train: the runs every law is fitted on.
         held_out: runs no fit sees, which decide (not the runs a result is then judged on).
         start: the starting parameters (default nominal); each law frees :data:`LAW_FREE`.
-        laws: the laws to try (default all of :data:`integrators.simulator.CONTACT_LAWS`).
+        laws: the laws to try (default all of :data:`cobra_model.parameters.CONTACT_LAWS`).
         weights: the objective's weights for fitting and choosing.
         fit: the fitting method (default least squares with its defaults).
         progress: called with a line per law.
@@ -94,11 +112,10 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
     weights = weights if weights is not None else Weights()
     fits = []
     for law in laws:
-        settings = SimSettings(contact=law)
         if progress is not None:
             progress(f"fitting the {law} contact law ({len(LAW_FREE[law])} free parameters)")
-        result = fit(Objective(train, start.with_frozen(free=LAW_FREE[law]), weights, settings=settings))
-        held = Objective(held_out, result.params, weights, settings=settings)(result.params.as_vector())
+        result = fit(Objective(train, start.with_contact_law(law).with_frozen(free=LAW_FREE[law]), weights))
+        held = Objective(held_out, result.params, weights)(result.params.as_vector())
         fits.append(LawFit(law, result, float(held)))
         if progress is not None:
             progress(f"  {law}: training cost {result.cost:.4g}, held-out cost {held:.4g}")
