@@ -52,14 +52,14 @@ from integrators import stability
 from integrators.momentum_step import MomentumStep
 
 
-#: The effects that act in this module rather than in the kernels: on the command stream and on
-#: the rigid-body model (see the module docstring).
-STEP_EFFECT_PARAMETERS: tuple[Parameter, ...] = (
-    Parameter("actuator_delay", "s", 0.0, 0.0, 0.2, group="actuator_delay", doc="command / bus latency"),
-    Parameter("link_mass_error", "kg", 0.0, -0.5, 2.0, group="link_mass_error",
-              doc="mass added to the head module (payload)"),
-)
-_EFFECT_PARAMETERS: dict[str, Parameter] = {p.name: p for p in K.EFFECT_PARAMETERS + STEP_EFFECT_PARAMETERS}
+#: The effects that act in this module rather than in the kernels, by the stage they enter at
+#: (:class:`Entry`): the servo goals (``"commands"``) and the rigid-body model (``"model"``).
+STEP_EFFECT_PARAMETERS: dict[str, Parameter] = {
+    "commands": Parameter("actuator_delay", "s", 0.0, 0.0, 0.2, group="actuator_delay", doc="command / bus latency"),
+    "model": Parameter("link_mass_error", "kg", 0.0, -0.5, 2.0, group="link_mass_error",
+                       doc="mass added to the head module (payload)"),
+}
+_EFFECT_PARAMETERS: dict[str, Parameter] = {p.name: p for p in (*K.EFFECT_PARAMETERS, *STEP_EFFECT_PARAMETERS.values())}
 
 
 def effect_parameter(name: str) -> Parameter:
@@ -71,6 +71,59 @@ def effect_parameter(name: str) -> Parameter:
     if name not in _EFFECT_PARAMETERS:
         raise InputError(f"unknown effect parameter {name!r}; known: {', '.join(_EFFECT_PARAMETERS)}")
     return _EFFECT_PARAMETERS[name]
+
+
+@dataclass(frozen=True)
+class Entry:
+    """Where a parameter enters the simulation: the array a kernel reads, or the step stage.
+
+    Attributes:
+        parameter: the parameter's name.
+        stage: ``"ground"`` (``Simulator.ground[slot]``, read by the contact kernels for every
+            contact), ``"actuator"`` (``Simulator.act[:, slot]``, one value per joint, read by
+            the servo and motor kernel), ``"commands"`` (the servo goals are delayed,
+            :func:`delay_commands`) or ``"model"`` (the rigid-body model's head module gains the
+            mass, ``RobotModel.with_link_mass``).
+        slot: the index into ``ground`` or ``act`` (None for the other stages).
+    """
+
+    parameter: str
+    stage: str
+    slot: int | None = None
+
+    def read(self, sim: "Simulator") -> np.ndarray:
+        """The value(s) ``sim`` holds at this entry: (1,) for a shared value, (n_joints,) per joint;
+        for ``"model"`` the mass [kg] the simulated model has beyond the one it was given."""
+        if self.stage == "ground":
+            return sim.ground[[self.slot]]
+        if self.stage == "actuator":
+            return sim.act[:, self.slot]
+        if self.stage == "commands":
+            return np.array([sim.delay_s])
+        return np.array([sim.model.total_mass - sim.given_model.total_mass])
+
+    def __str__(self) -> str:
+        where = {"ground": f"ground[{self.slot}] of the contact kernels",
+                 "actuator": f"act[:, {self.slot}] of the actuator kernel (per joint)",
+                 "commands": "the servo goals (delay_commands)", "model": "the rigid-body model (with_link_mass)"}
+        return f"{self.parameter} -> {where[self.stage]}"
+
+
+def entry_of(name: str) -> Entry:
+    """Where parameter ``name`` (an effect's or a nominal one the kernels read) enters the simulation.
+
+    Raises:
+        InputError: for a name that enters nowhere this module knows (listing the known ones).
+    """
+    if name in K.GROUND_PARAMETERS:
+        return Entry(name, "ground", K.GROUND_PARAMETERS[name])
+    if name in K.ACTUATOR_PARAMETERS:
+        return Entry(name, "actuator", K.ACTUATOR_PARAMETERS[name])
+    for stage, p in STEP_EFFECT_PARAMETERS.items():
+        if p.name == name:
+            return Entry(name, stage)
+    known = [*K.GROUND_PARAMETERS, *K.ACTUATOR_PARAMETERS, *(p.name for p in STEP_EFFECT_PARAMETERS.values())]
+    raise InputError(f"parameter {name!r} enters no kernel array or step stage; known: {', '.join(known)}")
 
 
 def _inactive_value(name: str) -> float | None:
@@ -232,6 +285,7 @@ class Simulator:
         def per_joint(name: str) -> np.ndarray:
             return p.per_joint(name, _inactive_value(name))[:n]
 
+        self.given_model = model
         if effect_value(p, "link_mass_error"):
             model = model.with_link_mass(model.body_names[0], p.value("link_mass_error"))
         self.model = model.with_armature(per_joint("armature"))

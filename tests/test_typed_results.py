@@ -10,8 +10,8 @@ from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from integrators import kernels as K
-from integrators.simulator import STEP_EFFECT_PARAMETERS, Simulator, effect_parameter, effect_value
-from sysid.discrepancy.effects import EFFECTS
+from integrators.simulator import STEP_EFFECT_PARAMETERS, Simulator, effect_parameter, effect_value, entry_of
+from sysid.discrepancy.effects import EFFECTS, EffectLibrary
 from sysid.discrepancy.diagnose import NamedEffect, StructuralDifference
 from sysid.identification.intervals import Whiteness
 from sysid.identification.lsq import FitResult, FitStatus, IterationLog, ParameterReport
@@ -70,7 +70,7 @@ def test_fit_result_round_trip():
 
 def test_an_effect_parameter_a_set_lacks_is_simulated_at_its_inactive_value():
     nominal = ModelParameters.nominal()
-    for p in K.EFFECT_PARAMETERS + STEP_EFFECT_PARAMETERS:
+    for p in (*K.EFFECT_PARAMETERS, *STEP_EFFECT_PARAMETERS.values()):
         assert effect_value(nominal, p.name) == p.value
     sim = Simulator(CobraModel.load(), nominal)
     assert np.all(sim.act[:, K.A_TAU_MAX] == 9.9)        # the stall torque: no limit below it
@@ -92,3 +92,21 @@ def test_each_effect_reads_the_parameter_its_physics_defines():
     slots = set(K.GROUND_PARAMETERS) | set(K.ACTUATOR_PARAMETERS)
     for p in K.EFFECT_PARAMETERS:
         assert p.name in slots, p.name
+
+
+def test_each_effect_enters_where_it_says():
+    """An effect's ``enters`` is where the simulator puts its parameter: a simulator of a set with
+    the effect at its realistic value holds that value there (every joint for an actuator entry),
+    and one without it holds the inactive value."""
+    model, nominal = CobraModel.load(), ModelParameters.nominal()
+    library = EffectLibrary()
+    for e in EFFECTS:
+        entry = e.enters
+        assert entry.parameter == e.parameter.name and entry.stage in ("ground", "actuator", "commands", "model")
+        on = Simulator(model, library.transform(nominal, {e.name: e.realistic}, frozen=True))
+        np.testing.assert_allclose(entry.read(on), e.realistic, rtol=1e-12, atol=1e-12, err_msg=e.name)
+        off = entry.read(Simulator(model, nominal))
+        np.testing.assert_allclose(off, e.parameter.value, atol=1e-12, err_msg=e.name)
+    assert str(entry_of("mu_c")) == f"mu_c -> ground[{K.G_MU_C}] of the contact kernels"
+    with pytest.raises(InputError, match="parameter 'armature' enters no kernel array or step stage"):
+        entry_of("armature")

@@ -1,8 +1,10 @@
 """Candidate physical effects the nominal model may lack: a composable library.
 
 In the shape of pysindy's feature libraries: an :class:`Effect` knows its name, its parameter
-(unit, bounds, the value at which it is inactive and a starting value for fitting), how it
-enters the dynamics or the measurement, and the residual signature it predicts; an
+(unit, bounds, the value at which it is inactive and a starting value for fitting), where it
+enters the simulation (:attr:`Effect.enters`, an ``integrators.simulator.Entry``: the kernel array
+and slot, or the step stage, that the simulator packs it into) with the law it follows there, and
+the residual signature it predicts; an
 :class:`EffectLibrary` combines effects (``lib_a + lib_b``), lists them
 (``get_feature_names``) and adds their parameters to a parameter set (``transform``).
 
@@ -38,7 +40,7 @@ from typing import Iterable, Iterator, Mapping
 from cobra_model.servo import SERVO_STALL_TORQUE_NM
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
-from integrators.simulator import effect_parameter
+from integrators.simulator import Entry, effect_parameter, entry_of
 
 
 @dataclass(frozen=True)
@@ -49,7 +51,7 @@ class Effect:
         name: the effect's stable name (``joint_coulomb_friction``, ...).
         parameter: its main parameter; ``value`` is the inactive value.
         start: where a fit starts it (inside the bounds, where the effect acts).
-        enters: how it enters the dynamics or the measurement.
+        law: what it does where it enters (:attr:`enters`), in words.
         signature: the residual signature it predicts, in words.
         features: the localisation numbers (keys of :class:`sysid.discrepancy.signature.Signature`) whose
             magnitude indicates it, with a sign (+1: large is evidence, -1: small is evidence).
@@ -72,13 +74,19 @@ class Effect:
     name: str
     parameter: Parameter
     start: float
-    enters: str
+    law: str
     signature: str
     features: tuple[tuple[str, float], ...]
     bends: tuple[str, ...] = ()
     acts_below_demand: bool = False
     plausible: tuple[float, float] | None = None
     realistic: float | None = None
+
+    @property
+    def enters(self) -> Entry:
+        """Where the simulator puts the effect's parameter (``Entry.read`` gives it back from a
+        simulator): looked up in the simulator's own tables, so it cannot disagree with them."""
+        return entry_of(self.parameter.name)
 
     def implausible(self, value: float) -> str | None:
         """Why ``value`` of the effect's parameter is not a physical value of the effect (None
