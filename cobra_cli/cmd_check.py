@@ -10,7 +10,7 @@ import json
 import sys
 from typing import Sequence, TextIO
 
-from cobra_cli.common import load_params, parse_names
+from cobra_cli.common import add_contact_option, fit_start
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 from cobra_model.run import Run
@@ -31,7 +31,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "only. Exit 0 when the data can be fitted (possibly with parameters frozen), 2 when not.")
     p.add_argument("runs", nargs="+", metavar="RUNS", help="run CSVs or a dataset manifest.json")
     p.add_argument("--params", help="parameter file (default: nominal)")
-    p.add_argument("--free", help="comma-separated names to judge (default: every parameter not frozen)")
+    add_contact_option(p, "judge")
+    p.add_argument("--free", help="comma-separated names to judge (default: every parameter not frozen that the "
+                   "contact law reads)")
     p.add_argument("--frozen", help="comma-separated names to hold fixed")
     p.add_argument("--horizon", type=float, default=DEFAULT_HORIZON_S, metavar="S",
                    help=f"horizon of the identifiability Jacobian [s] (default {DEFAULT_HORIZON_S:g})")
@@ -42,12 +44,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if not (args.horizon > 0):
         raise InputError(f"--horizon must be a positive number of seconds, got {args.horizon}")
-    start = load_params(args.params)
-    try:
-        params = start.with_frozen(frozen=parse_names(args.frozen, "--frozen"),
-                                   free=parse_names(args.free, "--free") or None)
-    except InputError as exc:
-        raise InputError(f"--free/--frozen: {exc}") from None
+    params = fit_start(args.params, args.contact, args.free, args.frozen, out=sys.stderr if args.json else sys.stdout)
     train_paths, val_paths = expand(args.runs)
     if not train_paths:
         raise InputError(f"{', '.join(args.runs)}: no training runs")

@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Sequence
 
 from cobra_cli.cmd_check import check_before_fit
-from cobra_cli.common import check_writable, load_params, parse_names
+from cobra_cli.common import add_contact_option, check_writable, fit_start
 from cobra_model.errors import InputError
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
@@ -29,7 +29,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print diagnosis.json instead of the summary")
     p.add_argument("--max-effects", type=int, default=2, help="effects to look for in turn (default 2)")
     p.add_argument("--params", help="starting parameter file (default nominal)")
-    p.add_argument("--free", help="comma-separated parameters the fits tune (default: all not frozen)")
+    add_contact_option(p, "fit and diagnose")
+    p.add_argument("--free", help="comma-separated parameters the fits tune (default: all not frozen that the "
+                   "contact law reads)")
     p.add_argument("--fit-runs", type=int, default=DiagnoseConfig.fit_runs,
                    help=f"training runs used by the fits, spread over the gaits (default "
                         f"{DiagnoseConfig.fit_runs}; 0 = all)")
@@ -41,12 +43,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     return diagnose_to(args.out, args.runs, holdout=args.holdout, max_effects=args.max_effects, params=args.params,
-                       free=args.free, fit_runs=args.fit_runs, force=args.force, check=not args.no_check,
+                       contact_law=args.contact, free=args.free, fit_runs=args.fit_runs, force=args.force, check=not args.no_check,
                        json_out=args.json)
 
 
 def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), max_effects: int = 2,
-                params: str | None = None, free: str | None = None, fit_runs: int = DiagnoseConfig.fit_runs,
+                params: str | None = None, contact_law: str | None = None, free: str | None = None,
+                fit_runs: int = DiagnoseConfig.fit_runs,
                 force: bool = False, check: bool = True, json_out: bool = False) -> int:
     """``cobra diagnose``'s work (also ``cobra demo``'s last step): the arguments are the command's
     options; writes ``OUTPUTS`` into ``out`` and prints the summary (or the JSON). Returns 0."""
@@ -57,9 +60,7 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
             check_writable(out / name, force)
     if max_effects < 0:
         raise InputError(f"--max-effects must be >= 0, got {max_effects}")
-    start = load_params(params)
-    if free:
-        start = start.with_frozen(free=parse_names(free, "--free"))
+    start = fit_start(params, contact_law, free, out=sys.stderr if json_out else sys.stdout)
     train_paths, val_paths = expand(list(runs))
     val_paths += [Path(p) for p in holdout]
     if not train_paths or not val_paths:

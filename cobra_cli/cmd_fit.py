@@ -6,10 +6,9 @@ import json
 from pathlib import Path
 
 from cobra_cli.cmd_check import check_before_fit
-from cobra_cli.common import add_contact_option, check_writable, load_params, parse_names
+from cobra_cli.common import add_contact_option, check_writable, fit_start
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
-from sysid.identification.contact_choice import free_for_law, unread_by_law
 from sysid.identification.executor import make_executor
 from sysid.identification.fit_report import fit_document, write_fit_report
 from sysid.identification.lsq import FitResult
@@ -27,7 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--holdout", nargs="*", default=[], metavar="RUN", help="held-out runs (added to a manifest's)")
     p.add_argument("--params", help="starting parameter file (default: nominal)")
     add_contact_option(p, "fit")
-    p.add_argument("--free", help="comma-separated names to tune (default: every parameter not frozen)")
+    p.add_argument("--free", help="comma-separated names to tune (default: every parameter not frozen that the "
+                   "contact law reads)")
     p.add_argument("--frozen", help="comma-separated names to hold fixed")
     p.add_argument("--budget-seconds", type=float, default=None, help="wall-time budget [s]")
     p.add_argument("--max-iterations", type=int, default=20, help="least squares: Jacobian evaluations at most")
@@ -72,21 +72,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--report {report_dir}: exists and is not a directory")
         if report_dir.exists():
             check_writable(report_dir / "report.html", args.force)
-    start = load_params(args.params, args.contact)
-    free, frozen = parse_names(args.free, "--free"), parse_names(args.frozen, "--frozen")
-    try:
-        params = start.with_frozen(frozen=frozen, free=free or None)
-    except InputError as exc:
-        raise InputError(f"--free/--frozen: {exc}") from None
-    unread = unread_by_law(params, free)
-    if unread:
-        raise InputError(f"--free {','.join(unread)}: the {params.contact_law} contact law does not read "
-                         f"{'it' if len(unread) == 1 else 'them'} (--contact chooses the law)")
-    if not free:
-        params, changed = free_for_law(params)
-        params = params.with_frozen(frozen=frozen)  # the user's --frozen still holds
-        if changed:
-            print(changed)
+    params = fit_start(args.params, args.contact, args.free, args.frozen)
     train_paths, val_paths = expand(args.runs)
     val_paths += [Path(p) for p in args.holdout]
     if not train_paths:
@@ -151,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
     held = []
     if validation:
         from sysid.gap.report import evaluate_held_out, head_text
-        held = evaluate_held_out(validation, start, fitted)
+        held = evaluate_held_out(validation, params, fitted)
         print("held-out runs, before -> after: final head error, joint RMSE")
         for h in held:
             b, a = h.gap_before, h.gap_after

@@ -2,7 +2,9 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
+from typing import TextIO
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import CONTACT_LAWS, ModelParameters
@@ -13,6 +15,36 @@ def load_params(path: str | Path | None, contact_law: str | None = None) -> Mode
     given, else under the file's law (the nominal set's: compliant)."""
     params = ModelParameters.nominal() if path is None else ModelParameters.load(path)
     return params if contact_law is None else params.with_contact_law(contact_law)
+
+
+def fit_start(path: str | Path | None, contact_law: str | None, free: str | None, frozen: str | None = None,
+              out: TextIO | None = None) -> ModelParameters:
+    """The starting parameters of ``cobra fit`` and ``cobra diagnose``: the parameter file (nominal
+    when None) under ``contact_law`` (the file's if None), ``--free``/``--frozen`` applied. Without
+    ``--free`` the free set follows the law (``sysid.identification.contact_choice.free_for_law``),
+    which is said on ``out`` (default: standard output).
+
+    Raises:
+        InputError: for unknown names, or a ``--free`` ground parameter the law does not read.
+    """
+    from sysid.identification.contact_choice import free_for_law, unread_by_law
+
+    start = load_params(path, contact_law)
+    free_names, frozen_names = parse_names(free, "--free"), parse_names(frozen, "--frozen")
+    try:
+        params = start.with_frozen(frozen=frozen_names, free=free_names or None)
+    except InputError as exc:
+        raise InputError(f"--free/--frozen: {exc}") from None
+    unread = unread_by_law(params, free_names)
+    if unread:
+        raise InputError(f"--free {','.join(unread)}: the {params.contact_law} contact law does not read "
+                         f"{'it' if len(unread) == 1 else 'them'} (--contact chooses the law)")
+    if free_names:
+        return params
+    params, changed = free_for_law(params)
+    if changed:
+        print(changed, file=out or sys.stdout)
+    return params.with_frozen(frozen=frozen_names)  # the user's --frozen still holds
 
 
 def add_contact_option(p: argparse.ArgumentParser, what: str) -> None:

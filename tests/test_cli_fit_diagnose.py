@@ -174,3 +174,18 @@ def test_fit_under_the_soft_law_records_it_and_compare_uses_it(soft_data, tmp_pa
     assert main(["compare", str(hold), "--params", str(out), "--json"]) == 0
     report = json.loads(capsys.readouterr().out)
     assert report["head_final_error_m"] < 0.01               # the law and values of the truth predict it
+
+
+def test_check_and_diagnose_judge_the_parameters_of_the_law(soft_data, tmp_path, capsys):
+    """``cobra check --contact soft_constraint`` judges the law's own parameters (the time constant,
+    not the compliant ground's springs), and ``cobra diagnose`` refuses to fit what the law ignores."""
+    train, hold = soft_data
+    assert main(["check", *map(str, train), "--contact", "soft_constraint", "--json"]) == 0
+    captured = capsys.readouterr()
+    judged = json.loads(captured.out)["identifiability"]["parameters"]
+    assert "contact_time_constant" in judged and not {"k1", "k2", "mu_s", "mu_v", "v_s"} & set(judged)
+    assert judged["contact_time_constant"]["frozen"] is False            # the runs pin it down
+    assert "do not enter it (frozen)" in captured.err                    # said off stdout with --json
+    assert main(["diagnose", *map(str, train), "--holdout", str(hold), "--contact", "soft_constraint",
+                 "--free", "mu_c,v_s", "--out", str(tmp_path / "d")]) == 2
+    assert "--free v_s: the soft_constraint contact law does not read it" in capsys.readouterr().err

@@ -13,9 +13,9 @@ cost on runs the fits did not see is kept.
 Each law is fitted from several shapes of the module ends (:data:`ROUNDING_STARTS_M`), keeping
 the fit with the lowest training cost: the ends' rounding moves every contact point along its
 module (from the rim of the end circle to the rounded cap), which changes the lever arms of all
-ground forces at once, so the cost has a basin per shape and a local fit stays in the one it
-starts in (on MuJoCo's runs the soft-constraint law's fits end within 1.5 cm of their starting rounding, from 0, 2.25
-and 4.5 cm alike).
+ground forces at once, so the cost has a basin per shape and a local fit can stay in the one it
+starts in (on MuJoCo's runs the soft-constraint law's fits end within 1.5 cm of their starting
+rounding, from 0, 2.25 and 4.5 cm alike; the compliant law's mostly reach 4.5 cm from any start).
 """
 from __future__ import annotations
 
