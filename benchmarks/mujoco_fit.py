@@ -155,7 +155,7 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
             "meets_head_bound": bool(after.head.final <= HEAD_BOUND_M),
             "meets_joint_bound": bool(joint <= JOINT_BOUND_FACTOR * JOINT_FLOOR_RAD),
             "choice": choice.to_json(), "fit_status": best.status.value,
-            "fit_seconds": sum(f.fit.seconds for f in choice.fits),
+            "fit_seconds": sum(f.seconds for f in choice.fits),
             "at_bound": [r.name for r in best.report if r.at_bound], "intervals": intervals,
             "fitted": {n: best.params.value(n) for n in best.params.free_names},
         })

@@ -62,7 +62,8 @@ class BatchSimulator:
         self._groups = [(int(a), int(b), pin.ModelPool(self.sims[self._slots[a]].model.pin_model, threads))
                         for a, b in zip(np.r_[0, bounds], np.r_[bounds, len(params)])]
         # the soft-constraint law needs each environment's inverse mass matrix (one Data per group)
-        self._models = [(m, m.createData()) for m in (self.sims[self._slots[a]].model.pin_model for a, _, _ in self._groups)]
+        self._models = [(m, m.createData()) for m in (self.sims[self._slots[a]].model.pin_model for a, _, _ in self._groups)
+                        ] if first.contact_law == "soft_constraint" else []
         self.act = np.ascontiguousarray(np.stack([s.act for s in self.sims]))
         self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
         self._first = first

@@ -70,18 +70,19 @@ def free_for_law(params: ModelParameters) -> tuple[ModelParameters, str | None]:
 @dataclass(frozen=True)
 class LawFit:
     """One contact law's fit (its parameters carry the law; the lowest training cost over the
-    starts), its cost on the held-out runs (the objective's, same weights) and the training cost
-    reached from each starting ``contact_rounding`` [m]."""
+    starts), its cost on the held-out runs (the objective's, same weights), the training cost
+    reached from each starting ``contact_rounding`` [m] and the seconds of all its starts' fits."""
 
     law: str
     fit: FitResult
     held_out_cost: float
-    starts: tuple[tuple[float, float], ...] = ()
+    starts: tuple[tuple[float, float], ...]
+    seconds: float
 
     def to_json(self) -> dict:
         return {"law": self.law, "held_out_cost": self.held_out_cost, "train_cost": self.fit.cost,
                 "train_cost_by_rounding_start": [list(s) for s in self.starts],
-                "status": self.fit.status.value, "seconds": self.fit.seconds,
+                "status": self.fit.status.value, "seconds": self.fit.seconds, "seconds_all_starts": self.seconds,
                 "params": {n: self.fit.params.value(n) for n in self.fit.params.free_names}}
 
 
@@ -142,7 +143,8 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
             results.append(fit(Objective(train, law_start, weights)))
         result = min(results, key=lambda r: r.cost)
         held = Objective(held_out, result.params, weights)(result.params.as_vector())
-        fits.append(LawFit(law, result, float(held), tuple((float(r0), r.cost) for r0, r in zip(rounding_starts, results))))
+        fits.append(LawFit(law, result, float(held), tuple((float(r0), r.cost) for r0, r in zip(rounding_starts, results)),
+                           sum(r.seconds for r in results)))
         if progress is not None:
             progress(f"  {law}: training cost {result.cost:.4g}, held-out cost {held:.4g}")
     chosen = min(fits, key=lambda f: f.held_out_cost).law
