@@ -27,14 +27,24 @@ nulls, the median held-out gap shrink when the right effect is named (the held-o
 workflow judges by, head and joints, and the final head error alone), and the wall time per
 diagnosis.
 
+Pairs: every two effects an engine expresses, hidden together at their realistic magnitudes (one
+dataset each, seeds cycled), are diagnosed for two effects; a pair counts when both are named,
+in either order (``--no-pairs`` leaves them out). They are counted apart from the confusion matrix.
+
+The model's contact law: this simulator's runs are diagnosed with the law that made them
+(compliant); MuJoCo's with ``--mujoco-contact-law`` (default compliant; the law's own ground
+parameters are freed and those it does not read frozen, as ``cobra diagnose --contact`` does;
+another law writes ``diagnose_matrix_<law>.*``).
+
 Usage: ``python benchmarks/diagnose_matrix.py [--engines sim,mujoco] [--effects ...]
-[--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--executor local|ray]
-[--resume]``.
+[--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--no-pairs]
+[--mujoco-contact-law compliant|soft_constraint] [--executor local|ray] [--resume]``.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 import json
 import sys
 import time
@@ -48,10 +58,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import RESULTS_DIR, write_results  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
+from cobra_model.parameters import CONTACT_LAWS  # noqa: E402
 from integrators.simulator import Simulator  # noqa: E402
 from sysid.generators.dataset import RunPlan, record  # noqa: E402
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
+from sysid.identification.contact_choice import free_for_law  # noqa: E402
 from sysid.identification.executor import make_executor  # noqa: E402
 
 ERROR = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
@@ -69,6 +81,8 @@ NEAR_LIMIT = {"joint_coulomb_friction": 0.075, "backlash": 0.005, "actuator_dela
               "torque_saturation": 3.9, "anisotropic_ground_friction": 1.25, "encoder_offset": 0.0075,
               "link_mass_error": 0.2}
 ENGINES = ("sim", "mujoco")
+#: Joins the two effects of a pair job's ``effect`` ("actuator_delay+backlash").
+PAIR_SEP = "+"
 
 
 @dataclasses.dataclass(frozen=True)
@@ -76,11 +90,22 @@ class Job:
     """One dataset and its diagnosis."""
 
     engine: str
-    effect: str | None  # None: a null (parameter error only)
-    magnitude: float | None
-    level: str          # "realistic", "near_limit" or "null"
+    effect: str | None  # None: a null (parameter error only); "a+b": two effects hidden together
+    magnitude: float | None  # None for nulls and pairs (each of a pair at its realistic magnitude)
+    level: str          # "realistic", "near_limit", "null" or "pair"
     seed: int
     duration_s: float
+    contact_law: str = "compliant"  # the model's contact law in the diagnosis (its start and free set)
+
+    @property
+    def hidden(self) -> dict[str, float]:
+        """Library effect -> the magnitude hidden in this job's data (empty for a null)."""
+        if self.effect is None:
+            return {}
+        if self.level == "pair":
+            library = EffectLibrary()
+            return {name: library[name].realistic for name in self.effect.split(PAIR_SEP)}
+        return {self.effect: float(self.magnitude)}
 
 
 def make_runs(job: Job, model: CobraModel) -> list:
@@ -91,13 +116,10 @@ def make_runs(job: Job, model: CobraModel) -> list:
     plans = [RunPlan(f"r{i}", f, job.duration_s, (rng.uniform(-1, 1), rng.uniform(-1, 1)), rng.uniform(0, 2 * np.pi),
                      "train") for i, f in enumerate((0.5, 0.65, 0.5))]
     if job.engine == "sim":
-        hidden = truth if job.effect is None else library.transform(truth, {job.effect: job.magnitude}, frozen=True)
-        sim = Simulator(model, hidden)
+        sim = Simulator(model, library.transform(truth, job.hidden, frozen=True))
         return [record(sim, p, rng, model) for p in plans]
     from sysid.generators.mujoco_recording import record_mujoco, twin_options
-    options = twin_options(truth)
-    if job.effect is not None:
-        options = dataclasses.replace(options, **{MUJOCO_OPTIONS[job.effect]: job.magnitude})
+    options = dataclasses.replace(twin_options(truth), **{MUJOCO_OPTIONS[n]: v for n, v in job.hidden.items()})
     return [record_mujoco(p, options, rng, model, truth) for p in plans]
 
 
@@ -106,14 +128,18 @@ def run_job(job: Job) -> dict[str, Any]:
     model = CobraModel.load()
     runs = make_runs(job, model)
     free = FREE_SIM if job.engine == "sim" else FREE_MUJOCO
+    # the law's own ground parameters free, those it does not read frozen (as `cobra diagnose --contact`)
+    start, _ = free_for_law(ModelParameters.nominal().with_contact_law(job.contact_law).with_frozen(free=free))
     t0 = time.perf_counter()
-    d = diagnose(runs[:2], runs[2:], params=ModelParameters.nominal().with_frozen(free=free),
-                 config=DiagnoseConfig(max_effects=1))
+    d = diagnose(runs[:2], runs[2:], params=start,
+                 config=DiagnoseConfig(max_effects=max(1, len(job.hidden))))
     wall = time.perf_counter() - t0
-    named = d.effects[0].name if d.effects else None
+    named = [e.name for e in d.effects]
     before, after = d.gap_before, d.gap_after
     return {"engine": job.engine, "effect": job.effect, "level": job.level, "magnitude": job.magnitude,
-            "seed": job.seed, "named": named, "structural": [s.name for s in d.structural],
+            "seed": job.seed, "contact_law": job.contact_law, "named": named[0] if named else None, "named_all": named,
+            "all_named": bool(job.hidden) and set(job.hidden) <= set(named),
+            "structural": [s.name for s in d.structural],
             "head_final_before_m": before.head_final_error_m, "head_final_after_m": after.head_final_error_m,
             "joint_rmse_before_rad": before.joint_rmse_rad, "joint_rmse_after_rad": after.joint_rmse_rad,
             "gap_shrink": 1.0 - after.head_final_error_m / before.head_final_error_m
@@ -123,9 +149,14 @@ def run_job(job: Job) -> dict[str, Any]:
 
 
 def job_key(row_or_job: Any) -> tuple:
-    """What identifies a job (and the row it made): engine, effect, level, magnitude, seed."""
-    get = row_or_job.get if isinstance(row_or_job, dict) else lambda k: getattr(row_or_job, k)
-    return (get("engine"), get("effect"), get("level"), get("magnitude"), get("seed"))
+    """What identifies a job (and the row it made): engine, effect, level, magnitude, seed and the
+    model's contact law (rows written before the law was recorded: compliant)."""
+    if isinstance(row_or_job, dict):
+        get = row_or_job.get
+        law = row_or_job.get("contact_law", "compliant")
+    else:
+        get, law = (lambda k: getattr(row_or_job, k)), row_or_job.contact_law
+    return (get("engine"), get("effect"), get("level"), get("magnitude"), get("seed"), law)
 
 
 def finished_rows(path: Path, duration_s: float) -> dict[tuple, dict[str, Any]]:
@@ -150,43 +181,54 @@ def finished_rows(path: Path, duration_s: float) -> dict[tuple, dict[str, Any]]:
 
 
 def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: list[int], nulls: int,
-             duration_s: float) -> list[Job]:
-    """Every (engine, effect, magnitude, seed) job, then ``nulls`` nulls per engine (seeds cycled)."""
+             duration_s: float, pairs: bool = False, mujoco_law: str = "compliant") -> list[Job]:
+    """Every (engine, effect, magnitude, seed) job, then ``nulls`` nulls per engine (seeds cycled),
+    then with ``pairs`` every pair of the engine's effects hidden together at their realistic
+    magnitudes, one dataset each (seeds cycled). MuJoCo's runs are diagnosed with the model's
+    ``mujoco_law``; this simulator's with the law that made them (compliant)."""
     library = EffectLibrary()
     out = []
     for engine in engines:
-        for effect in effects:
-            if engine == "mujoco" and effect not in MUJOCO_OPTIONS:
-                continue
+        mine = [e for e in effects if engine == "sim" or e in MUJOCO_OPTIONS]
+        law = mujoco_law if engine == "mujoco" else "compliant"
+        for effect in mine:
             for level in levels:
                 magnitude = library[effect].realistic if level == "realistic" else NEAR_LIMIT[effect]
-                out += [Job(engine, effect, magnitude, level, seed, duration_s) for seed in seeds]
-        out += [Job(engine, None, None, "null", seeds[k % len(seeds)] + 1000 * (k // len(seeds)), duration_s)
+                out += [Job(engine, effect, magnitude, level, seed, duration_s, law) for seed in seeds]
+        out += [Job(engine, None, None, "null", seeds[k % len(seeds)] + 1000 * (k // len(seeds)), duration_s, law)
                 for k in range(nulls)]
+        if pairs:
+            out += [Job(engine, PAIR_SEP.join(pair), None, "pair", seeds[k % len(seeds)], duration_s, law)
+                    for k, pair in enumerate(itertools.combinations(mine, 2))]
     return out
 
 
 def summary(rows: list[dict[str, Any]], engine: str) -> dict[str, Any]:
     """Confusion counts, rates and medians of one engine's rows."""
-    mine = [r for r in rows if r["engine"] == engine]
+    everything = [r for r in rows if r["engine"] == engine]
+    mine = [r for r in everything if r["level"] != "pair"]
+    pairs = [r for r in everything if r["level"] == "pair"]
     hidden = [r for r in mine if r["effect"] is not None]
     nulls = [r for r in mine if r["effect"] is None]
     right = [r for r in hidden if r["named"] == r["effect"]]
     confusion = Counter((r["effect"] or "none", r["named"] or "none") for r in mine)
     return {"engine": engine, "diagnoses": len(mine),
             "named_first_rate": len(right) / len(hidden) if hidden else float("nan"),
+            "pairs": len(pairs),
+            "pairs_both_named_rate": sum(r["all_named"] for r in pairs) / len(pairs) if pairs else float("nan"),
             "false_positive_rate": sum(r["named"] is not None for r in nulls) / len(nulls) if nulls else float("nan"),
             "median_gap_shrink_when_right": float(np.median([r["gap_shrink"] for r in right])) if right else float("nan"),
             "median_cost_reduction_when_right": (float(np.median([r["held_out_cost_reduction"] for r in right]))
                                                  if right else float("nan")),
             "median_wall_s": float(np.median([r["wall_s"] for r in mine])) if mine else float("nan"),
+            "median_wall_s_pairs": float(np.median([r["wall_s"] for r in pairs])) if pairs else float("nan"),
             "confusion": {f"{t} -> {n}": c for (t, n), c in sorted(confusion.items())}}
 
 
 def heatmap(rows: list[dict[str, Any]], engine: str, out: Path) -> Path:
     """The engine's confusion matrix as a PNG (rows: hidden, columns: named first)."""
     from sysid.gap.plots import plot_confusion
-    mine = [r for r in rows if r["engine"] == engine]
+    mine = [r for r in rows if r["engine"] == engine and r["level"] != "pair"]
     truth = sorted({r["effect"] or "none" for r in mine})
     named = sorted({r["named"] or "none" for r in mine} | set(truth))
     counts = np.zeros((len(truth), len(named)), dtype=int)
@@ -195,24 +237,29 @@ def heatmap(rows: list[dict[str, Any]], engine: str, out: Path) -> Path:
     return plot_confusion(counts, truth, named, out, title=f"{engine}: hidden vs named first")
 
 
-def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int]) -> str:
+def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], mujoco_law: str = "compliant") -> str:
     lines = [f"Seeds {', '.join(map(str, seeds))} (developed on {', '.join(map(str, DEV_SEEDS))}); two 0.5/0.65 Hz "
-             "training runs and one 0.5 Hz held-out run per job.", "",
+             f"training runs and one 0.5 Hz held-out run per job; MuJoCo's runs diagnosed with the {mujoco_law} "
+             "contact law.", "",
              "| engine | diagnoses | named first (right) | false positives on nulls | median held-out cost "
-             "reduction when right | median held-out head gap shrink when right | median wall per diagnosis [s] |",
-             "|---|---:|---:|---:|---:|---:|---:|"]
+             "reduction when right | median held-out head gap shrink when right | median wall per diagnosis [s] | "
+             "pairs: both named | median wall per pair [s] |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for engine in engines:
         s = summary(rows, engine)
+        both = (f"{round(s['pairs_both_named_rate'] * s['pairs'])}/{s['pairs']}" if s["pairs"] else "-")
         lines.append(f"| {engine} | {s['diagnoses']} | {100 * s['named_first_rate']:.0f} % | "
                      f"{100 * s['false_positive_rate']:.0f} % | {100 * s['median_cost_reduction_when_right']:.0f} % | "
                      f"{100 * s['median_gap_shrink_when_right']:.0f} % | "
-                     f"{s['median_wall_s']:.0f} |")
-    lines += ["", "| engine | hidden effect | level | magnitude | seed | named first | structural | held-out final "
+                     f"{s['median_wall_s']:.0f} | {both} | {s['median_wall_s_pairs']:.0f} |")
+    lines += ["", "Pairs: each of the two effects at its realistic magnitude, named in the order found.", "",
+              "| engine | hidden effect | level | magnitude | seed | named | structural | held-out final "
               "head [m] | joint RMSE [rad] | wall [s] |", "|---|---|---|---:|---:|---|---|---|---|---:|"]
     for r in rows:
         mag = "-" if r["magnitude"] is None else f"{r['magnitude']:g}"
+        named = ", ".join(r["named_all"]) if r["level"] == "pair" else r["named"]
         lines.append(f"| {r['engine']} | {r['effect'] or 'none'} | {r['level']} | {mag} | {r['seed']} | "
-                     f"{r['named'] or 'none'} | {', '.join(r['structural']) or '-'} | "
+                     f"{named or 'none'} | {', '.join(r['structural']) or '-'} | "
                      f"{r['head_final_before_m']:.4f} -> {r['head_final_after_m']:.4f} | "
                      f"{r['joint_rmse_before_rad']:.4f} -> {r['joint_rmse_after_rad']:.4f} | {r['wall_s']:.0f} |")
     return "\n".join(lines)
@@ -227,6 +274,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--seeds", default=",".join(map(str, EVAL_SEEDS)),
                         help=f"data seeds (default {','.join(map(str, EVAL_SEEDS))}; {DEV_SEEDS} used while developing)")
     parser.add_argument("--nulls", type=int, default=6, help="null datasets per engine (default 6)")
+    parser.add_argument("--mujoco-contact-law", choices=CONTACT_LAWS, default="compliant",
+                        help="the model's contact law when diagnosing MuJoCo's runs (default compliant; with "
+                             "another, results go to diagnose_matrix_<law>.*)")
+    parser.add_argument("--no-pairs", dest="pairs", action="store_false",
+                        help="leave out the jobs that hide two effects together (every pair of the engine's "
+                             "effects at their realistic magnitudes, one seed each)")
     parser.add_argument("--duration", type=float, default=3.0, help="run length [s] (default 3)")
     parser.add_argument("--executor", choices=("local", "ray"), default="local")
     parser.add_argument("--ray-address", default=None, help="join this Ray cluster (with --executor ray)")
@@ -248,8 +301,10 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
     if set(seeds) & set(DEV_SEEDS):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
-    jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration)
-    done = finished_rows(RESULTS_DIR / "diagnose_matrix.json", args.duration) if args.resume else {}
+    law = args.mujoco_contact_law
+    name = "diagnose_matrix" if law == "compliant" else f"diagnose_matrix_{law}"
+    jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration, args.pairs, law)
+    done = finished_rows(RESULTS_DIR / f"{name}.json", args.duration) if args.resume else {}
     done = {k: r for k, r in done.items() if k in {job_key(j) for j in jobs}}
     todo = [j for j in jobs if job_key(j) not in done]
     executor = make_executor(args.executor, workers=1, ray_address=args.ray_address)
@@ -266,13 +321,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"[{len(rows)}/{len(jobs)} {time.perf_counter() - t0:.0f} s] {r['engine']} {r['effect'] or 'null'} "
               f"seed {r['seed']}: named {r['named'] or 'none'}", file=sys.stderr, flush=True)
         meta = {"engines": engines, "effects": effects, "magnitudes": levels, "seeds": seeds,
-                "dev_seeds": list(DEV_SEEDS), "nulls": args.nulls, "duration_s": args.duration,
-                "executor": args.executor, "summary": [summary(rows, e) for e in engines]}
-        write_results("diagnose_matrix", rows, meta, markdown(rows, engines, seeds))
+                "dev_seeds": list(DEV_SEEDS), "nulls": args.nulls, "pairs": args.pairs, "duration_s": args.duration,
+                "mujoco_contact_law": law, "executor": args.executor,
+                "summary": [summary(rows, e) for e in engines]}
+        write_results(name, rows, meta, markdown(rows, engines, seeds, law))
     executor.close()
     for engine in engines:
-        heatmap(rows, engine, RESULTS_DIR / f"diagnose_matrix_{engine}.png")
-    print(markdown(rows, engines, seeds))
+        heatmap(rows, engine, RESULTS_DIR / f"{name}_{engine}.png")
+    print(markdown(rows, engines, seeds, law))
     return 0
 
 

@@ -73,6 +73,10 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
         out.append((f"missing effect named first, on {label} runs (seeds {', '.join(map(str, doc['meta']['seeds']))})",
                     f"{_pct(s['named_first_rate'])} ({', '.join(levels)}); {_pct(s['false_positive_rate'])} "
                     f"false positives on {len(nulls)} nulls", f"{targets.get(s['engine'], '-')}; none"))
+        pairs = [r for r in mine if r["level"] == "pair"]
+        if pairs:
+            out.append((f"two effects hidden together, both named, on {label} runs",
+                        f"{sum(r['all_named'] for r in pairs)} of {len(pairs)} pairs", ">= 80 %"))
     return out
 
 

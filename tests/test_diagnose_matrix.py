@@ -16,7 +16,7 @@ from sysid.gap.plots import plot_confusion  # noqa: E402
 
 def _row(engine: str, effect: str | None, named: str | None, shrink: float = 0.9, wall: float = 40.0) -> dict:
     return {"engine": engine, "effect": effect, "named": named, "gap_shrink": shrink, "wall_s": wall,
-            "held_out_cost_reduction": 0.5 + shrink / 2 if named else 0.0}
+            "level": "realistic" if effect else "null", "held_out_cost_reduction": 0.5 + shrink / 2 if named else 0.0}
 
 
 def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_express() -> None:
@@ -28,6 +28,45 @@ def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_expre
     nulls = [j for j in sim if j.effect is None]
     assert [j.seed for j in nulls] == [31, 32, 1031]  # distinct data for every null
     assert {j.magnitude for j in sim if j.effect == "actuator_delay"} == {0.04, 0.01}
+
+
+def test_pairs_hide_every_two_effects_an_engine_expresses_at_their_realistic_magnitudes() -> None:
+    from benchmarks.diagnose_matrix import Job
+    effects = ["backlash", "actuator_delay", "encoder_offset"]
+    jobs = [j for j in jobs_for(["sim", "mujoco"], effects, ["realistic"], [31, 32], 0, 3.0, pairs=True)
+            if j.level == "pair"]
+    assert sorted(j.effect for j in jobs if j.engine == "sim") == [
+        "actuator_delay+encoder_offset", "backlash+actuator_delay", "backlash+encoder_offset"]
+    assert [j.effect for j in jobs if j.engine == "mujoco"] == ["actuator_delay+encoder_offset"]  # no backlash
+    assert [j.seed for j in jobs if j.engine == "sim"] == [31, 32, 31]
+    assert jobs[0].hidden == {"backlash": 0.02, "actuator_delay": 0.04}
+    assert Job("sim", "backlash", 0.005, "near_limit", 31, 3.0).hidden == {"backlash": 0.005}
+    assert Job("sim", None, None, "null", 31, 3.0).hidden == {}
+    assert not any(j.level == "pair" for j in jobs_for(["sim"], effects, ["realistic"], [31], 0, 3.0))
+
+
+def test_mujocos_runs_take_the_contact_law_asked_for_and_resume_tells_laws_apart(tmp_path: Path) -> None:
+    import json
+    from benchmarks.diagnose_matrix import finished_rows, job_key
+    jobs = jobs_for(["sim", "mujoco"], ["actuator_delay"], ["realistic"], [31], 1, 3.0, mujoco_law="soft_constraint")
+    assert {(j.engine, j.contact_law) for j in jobs} == {("sim", "compliant"), ("mujoco", "soft_constraint")}
+    old = {**_row("mujoco", "actuator_delay", "actuator_delay"), "magnitude": 0.04, "seed": 31}  # no law: compliant
+    path = tmp_path / "diagnose_matrix.json"
+    path.write_text(json.dumps({"meta": {"duration_s": 3.0}, "rows": [old]}))
+    done = finished_rows(path, 3.0)
+    mujoco = next(j for j in jobs if j.engine == "mujoco" and j.effect == "actuator_delay")
+    assert job_key(mujoco) not in done  # a compliant row is no soft-constraint job
+    assert job_key(jobs_for(["mujoco"], ["actuator_delay"], ["realistic"], [31], 0, 3.0)[0]) in done
+
+
+def test_pairs_are_counted_apart_from_the_confusion_matrix() -> None:
+    pair = {**_row("sim", "backlash+actuator_delay", "backlash"), "level": "pair",
+            "named_all": ["backlash", "actuator_delay"], "all_named": True}
+    half = {**pair, "named_all": ["backlash"], "all_named": False}
+    s = summary([_row("sim", "backlash", "backlash"), pair, half], "sim")
+    assert s["diagnoses"] == 1 and s["pairs"] == 2
+    assert s["pairs_both_named_rate"] == pytest.approx(0.5)
+    assert s["confusion"] == {"backlash -> backlash": 1}
 
 
 def test_summary_counts_right_names_false_positives_and_medians() -> None:
