@@ -29,7 +29,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--free", help="comma-separated names to tune (default: every parameter not frozen that the "
                    "contact law reads)")
     p.add_argument("--frozen", help="comma-separated names to hold fixed")
-    p.add_argument("--budget-seconds", type=float, default=None, help="wall-time budget [s]")
+    p.add_argument("--budget-seconds", type=float, default=None, help="wall-time budget [s] (least squares with "
+                   "contact_rounding free: shared by its fits from each shape of the module ends)")
     p.add_argument("--max-iterations", type=int, default=20, help="least squares: Jacobian evaluations at most")
     p.add_argument("--timesteps", type=int, default=2000, help="PPO: environment steps at most")
     p.add_argument("--seed", type=int, default=0, help="random seed (PPO)")
@@ -96,9 +97,18 @@ def run(args: argparse.Namespace) -> int:
         bar.set_postfix(cost=f"{cost:.4g}", s=f"{seconds:.0f}")
 
     if args.method == "lsq":
+        from sysid.identification.contact_choice import ROUNDING_STARTS_M, fit_from_shapes
         from sysid.identification.lsq import fit_lsq
-        result = fit_lsq(objective, max_iterations=args.max_iterations, budget_seconds=args.budget_seconds,
-                         progress=progress)
+        # contact_rounding free: one fit from each shape of the module ends, the lowest cost kept
+        starts = len(ROUNDING_STARTS_M) if "contact_rounding" in params.free_names else 1
+        budget = args.budget_seconds / starts if args.budget_seconds is not None else None
+        shapes = fit_from_shapes(objective, lambda o: fit_lsq(o, max_iterations=args.max_iterations,
+                                                              budget_seconds=budget, progress=progress),
+                                 label="fitting", progress=lambda line: bar.write(line))
+        result = shapes.best
+        if len(shapes.starts) > 1:
+            print("training cost from each starting contact_rounding: "
+                  + ", ".join(f"{r0:g} m -> {cost:.4g}" for r0, cost in shapes.starts))
     else:
         from sysid.identification.ppo import fit_ppo
         curve = report_dir / "reward_curve.png" if report_dir else None

@@ -176,6 +176,23 @@ def test_fit_under_the_soft_law_records_it_and_compare_uses_it(soft_data, tmp_pa
     assert report["head_final_error_m"] < 0.01               # the law and values of the truth predict it
 
 
+@pytest.mark.slow
+def test_fit_with_the_ends_shape_free_starts_from_each_shape_and_keeps_the_cheapest(soft_data, tmp_path, capsys):
+    """With ``contact_rounding`` free, ``cobra fit`` fits from sharp, half- and fully rounded ends
+    and keeps the lowest training cost: here the truth's sharp ends (0 m), where a fit from the
+    rounded ones would stay in their basin."""
+    train, _ = soft_data
+    out = tmp_path / "shape_fit.json"
+    assert main(["fit", *map(str, train), "--contact", "soft_constraint", "--free",
+                 "mu_c,contact_time_constant,contact_rounding", "--max-iterations", "4", "--out", str(out)]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("training cost from each"))
+    costs = {float(a.split(" m -> ")[0]): float(a.split(" m -> ")[1]) for a in line.split(": ")[1].split(", ")}
+    assert sorted(costs) == [0.0, 0.0225, 0.045]
+    fitted = ModelParameters.load(out)
+    assert fitted.contact_rounding < 0.005                              # the truth's sharp ends
+    assert json.loads(out.read_text())["fit"]["cost"] == pytest.approx(min(costs.values()), rel=1e-3)
+
+
 def test_check_and_diagnose_judge_the_parameters_of_the_law(soft_data, tmp_path, capsys):
     """``cobra check --contact soft_constraint`` judges the law's own parameters (the time constant,
     not the compliant ground's springs), and ``cobra diagnose`` refuses to fit what the law ignores."""

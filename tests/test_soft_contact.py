@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -214,3 +215,31 @@ def test_choosing_a_contact_law_needs_held_out_runs_and_known_laws():
         choose_contact_law([object()], [])
     with pytest.raises(InputError, match=r"unknown contact law\(s\) \['rigid'\]; known: compliant, soft_constraint"):
         choose_contact_law([object()], [object()], laws=["rigid"])
+
+
+def test_a_fit_from_shapes_starts_at_each_rounding_when_it_is_free_and_keeps_the_lowest_cost():
+    """The mechanism of the multi-start (no real fit: the fit is a stand-in that records where it
+    starts and whose cost has its minimum between the second and third shape)."""
+    from types import SimpleNamespace
+
+    from cobra_model.run_files import read_run
+    from sysid.identification.contact_choice import ROUNDING_STARTS_M, fit_from_shapes
+    from sysid.identification.objective import Objective, Weights
+
+    runs = [read_run(Path(__file__).resolve().parent.parent / "data" / "reference" / "run_02_0p50hz.csv")]
+    started = []
+
+    def fake_fit(objective):
+        r0 = objective.params.contact_rounding
+        started.append(r0)
+        return SimpleNamespace(cost=(r0 - 0.04) ** 2, seconds=1.0, params=objective.params)
+
+    free = ModelParameters.nominal().with_frozen(free=["mu_c", "contact_rounding"])
+    shapes = fit_from_shapes(Objective(runs, free, Weights()), fake_fit)
+    assert started == list(ROUNDING_STARTS_M)
+    assert shapes.best.params.contact_rounding == ROUNDING_STARTS_M[-1]  # 0.045 m is nearest 0.04 m
+    assert shapes.seconds == 3.0 and [s[0] for s in shapes.starts] == list(ROUNDING_STARTS_M)
+    started.clear()
+    fixed = ModelParameters.nominal().with_frozen(free=["mu_c"]).with_values(contact_rounding=0.01)
+    assert fit_from_shapes(Objective(runs, fixed, Weights()), fake_fit).starts == ((0.01, (0.01 - 0.04) ** 2),)
+    assert started == [0.01]  # a frozen shape is kept: one fit from it

@@ -68,6 +68,42 @@ def free_for_law(params: ModelParameters) -> tuple[ModelParameters, str | None]:
 
 
 @dataclass(frozen=True)
+class ShapeFits:
+    """The fit with the lowest training cost over the starting shapes of the module ends, the
+    training cost reached from each starting ``contact_rounding`` [m], and the seconds of all."""
+
+    best: FitResult
+    starts: tuple[tuple[float, float], ...]
+    seconds: float
+
+
+def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult] = fit_lsq,
+                    rounding_starts: Sequence[float] = ROUNDING_STARTS_M, label: str = "fitting",
+                    progress: Callable[[str], None] | None = None) -> ShapeFits:
+    """``fit`` of ``objective`` from each of ``rounding_starts``, the lowest training cost kept,
+    when its parameters' ``contact_rounding`` is free; one fit from its own start when it is not
+    (or when no starts are given).
+
+    Why several: the ends' rounding moves every contact point along its module, which changes
+    the lever arms of all ground forces at once, so the cost has a basin per shape and a local
+    fit stays in the one it starts in (module docstring). ``progress`` gets ``label`` and the
+    starting rounding of each fit.
+    """
+    start = objective.params
+    if "contact_rounding" not in start.free_names or not rounding_starts:
+        result = fit(objective)
+        return ShapeFits(result, ((float(start.contact_rounding), result.cost),), result.seconds)
+    results = []
+    for r0 in rounding_starts:
+        if progress is not None:
+            progress(f"{label} from contact_rounding {r0:g} m")
+        results.append(fit(objective.with_params(start.with_values(contact_rounding=r0))))
+    return ShapeFits(min(results, key=lambda r: r.cost),
+                     tuple((float(r0), r.cost) for r0, r in zip(rounding_starts, results)),
+                     sum(r.seconds for r in results))
+
+
+@dataclass(frozen=True)
 class LawFit:
     """One contact law's fit (its parameters carry the law; the lowest training cost over the
     starts), its cost on the held-out runs (the objective's, same weights), the training cost
@@ -134,17 +170,12 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
     weights = weights if weights is not None else Weights()
     fits = []
     for law in laws:
-        results = []
-        for r0 in rounding_starts:
-            if progress is not None:
-                progress(f"fitting the {law} contact law ({len(LAW_FREE[law])} free parameters) from "
-                         f"contact_rounding {r0:g} m")
-            law_start = start.with_values(contact_rounding=r0).with_contact_law(law).with_frozen(free=LAW_FREE[law])
-            results.append(fit(Objective(train, law_start, weights)))
-        result = min(results, key=lambda r: r.cost)
+        law_start = start.with_contact_law(law).with_frozen(free=LAW_FREE[law])
+        shapes = fit_from_shapes(Objective(train, law_start, weights), fit, rounding_starts,
+                                 f"fitting the {law} contact law ({len(LAW_FREE[law])} free parameters)", progress)
+        result = shapes.best
         held = Objective(held_out, result.params, weights)(result.params.as_vector())
-        fits.append(LawFit(law, result, float(held), tuple((float(r0), r.cost) for r0, r in zip(rounding_starts, results)),
-                           sum(r.seconds for r in results)))
+        fits.append(LawFit(law, result, float(held), shapes.starts, shapes.seconds))
         if progress is not None:
             progress(f"  {law}: training cost {result.cost:.4g}, held-out cost {held:.4g}")
     chosen = min(fits, key=lambda f: f.held_out_cost).law

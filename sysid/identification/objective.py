@@ -384,6 +384,10 @@ class Objective:
                                   None if self.model.urdf_path == DEFAULT_URDF.resolve() else self.model.urdf_path,
                                   threads=self.threads or (2 if self.executor.workers == 1 else 1))
 
+    def with_params(self, params: ModelParameters) -> "Objective":
+        """The same objective from ``params`` (its own evaluation count)."""
+        return Objective(self.runs, params, self.weights, self.settings, self.executor, self.threads, self.model)
+
     def truncated(self, seconds: float) -> "Objective":
         """The same objective over each run's first ``seconds`` [s] (its own evaluation count)."""
         runs = [r.slice_time(float(r.t[0]), float(r.t[0]) + seconds) for r in self.runs]
