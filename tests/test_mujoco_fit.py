@@ -106,10 +106,13 @@ def test_on_mujocos_soft_contact_the_soft_constraint_law_is_chosen(case):
     assert worse[1] < worse[0]                               # and it predicts the held-out runs better
 
 
-@pytest.mark.xfail(strict=True, reason="issue 16: with the soft-constraint law chosen the held-out error falls but "
-                                       "not below 5 cm on every gait (1.0 / 3.1 / 7.8 cm here at 0.35 / 0.5 / "
-                                       "0.65 Hz on 3 s training runs; see benchmarks/results/mujoco_fit.md)")
 def test_held_out_head_error_within_5_cm_on_every_gait(case):
+    """Issue 16's bound on MuJoCo's default contact, with the law chosen on validation runs.
+
+    Measured 0.22 / 0.51 / 0.89 cm at 0.35 / 0.5 / 0.65 Hz (held-out joints 0.68-0.79 mrad; the
+    nominal model 5-13 cm, the compliant law's fit 3.8-9.6 cm). With the soft law's per-edge
+    regulariser of before (``integrators.kernels.soft_contact_acceleration``) it was 1.0 / 3.1 /
+    7.8 cm and this test an expected failure."""
     choice, _, gaps = case
     assert max(g["head_final_error_m"] for g in gaps[choice.chosen]) <= 0.05
 

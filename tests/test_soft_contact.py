@@ -93,16 +93,18 @@ def test_edge_rows_are_pinocchios_contact_jacobian(cobra):
 
 def test_at_rest_the_constraint_holds_the_weight_pushing_only(cobra):
     """Lying still under gravity, the robot settles where the constraint's regulariser and its
-    spring balance (``R f = -k d r``): at 20 ms a sustained load sinks by tens of micrometres,
-    as in MuJoCo, far less than the constraint's 1 mm impedance width; no velocity is left and
-    every edge force is >= 0."""
+    spring balance (``R f = -k d r``): at 20 ms a sustained load sinks by micrometres, as in
+    MuJoCo (its twin lying straight: 4.5 um after 2 s; this law 9.2 um with the sharp ends'
+    rims as contact points), far less than the constraint's 1 mm impedance width; no velocity
+    is left and every edge force is >= 0. (With the per-edge regulariser of before, 2 mu^2
+    times too soft, it sank by tens of micrometres.)"""
     params = twin_counterpart(ModelParameters.nominal())
     sim = Simulator(cobra, soft(params))
     q_joints = np.zeros(cobra.n_joints)
     traj = sim.rollout(sim.rest_state(q_joints), np.tile(q_joints, (10, 1)), 2.0, record_every=100)
     assert np.abs(traj.v[-1]).max() < 1e-3
     lowest = cobra.contact_points(traj.q[-1], sim.ground[K.G_ROUND])[:, 2].min()
-    assert -0.0005 < lowest < -0.00001
+    assert -20e-6 < lowest < -1e-6
     assert np.all(sim._soft_warm >= 0) and sim._soft_warm.sum() > 0
 
 
@@ -137,6 +139,8 @@ def test_the_soft_law_follows_mujocos_default_contact(cobra):
     assert np.linalg.norm(mujoco - q0[:2]) > 0.3                       # it sidewinds
     assert gap["compliant"] > 0.04                                     # the structural gap (5.7 cm)
     assert gap["soft_constraint"] < 0.4 * gap["compliant"]             # closed by the law
+    # MuJoCo's pyramidal regulariser: measured 0.78 cm (1.12 cm with the per-edge one of before)
+    assert gap["soft_constraint"] < 0.01
 
 
 def test_batched_soft_rollouts_are_the_single_ones(cobra):
