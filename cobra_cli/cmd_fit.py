@@ -97,11 +97,11 @@ def run(args: argparse.Namespace) -> int:
         bar.set_postfix(cost=f"{cost:.4g}", s=f"{seconds:.0f}")
 
     if args.method == "lsq":
-        from sysid.identification.contact_choice import ROUNDING_STARTS_M, fit_from_shapes
+        from sysid.identification.contact_choice import fit_from_shapes, shape_starts
         from sysid.identification.lsq import fit_lsq
         # contact_rounding free: one fit from each shape of the module ends, the lowest cost kept
-        starts = len(ROUNDING_STARTS_M) if "contact_rounding" in params.free_names else 1
-        budget = args.budget_seconds / starts if args.budget_seconds is not None else None
+        fits = max(1, len(shape_starts(params)))
+        budget = args.budget_seconds / fits if args.budget_seconds is not None else None
         shapes = fit_from_shapes(objective, lambda o: fit_lsq(o, max_iterations=args.max_iterations,
                                                               budget_seconds=budget, progress=progress),
                                  label="fitting", progress=lambda line: bar.write(line))

@@ -706,21 +706,18 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
     d_max = SOFT_SOLIMP[1]
     bcoef = 2.0 / (d_max * tc)
     kcoef = 1.0 / (d_max * d_max * tc * tc * SOFT_DAMPRATIO * SOFT_DAMPRATIO)
-    for c in range(m // 4):
-        r0 = 4 * c
+    rhs = np.empty(m)
+    for r0 in range(0, m, 4):         # one contact: its four edges share the depth and impedance
         d = soft_impedance(depth[r0])
         reg = 2.0 * mu1 * mu1 * (1.0 - d) / d * 0.5 * (A[r0, r0] + A[r0 + 1, r0 + 1])
-        for e in range(4):
-            A[r0 + e, r0 + e] += reg
-    rhs = np.empty(m)
-    for j in range(m):
-        d = soft_impedance(depth[j])
-        jv = 0.0
-        ja = 0.0
-        for col in range(nv):
-            jv += rows[j, col] * v[col]
-            ja += rows[j, col] * a_out[col]
-        rhs[j] = -bcoef * jv - kcoef * d * depth[j] - ja
+        for j in range(r0, r0 + 4):
+            A[j, j] += reg
+            jv = 0.0
+            ja = 0.0
+            for col in range(nv):
+                jv += rows[j, col] * v[col]
+                ja += rows[j, col] * a_out[col]
+            rhs[j] = -bcoef * jv - kcoef * d * depth[j] - ja
     f = np.zeros(m)
     row = 0
     for k in range(X.shape[0]):

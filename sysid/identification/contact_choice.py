@@ -77,6 +77,12 @@ class ShapeFits:
     seconds: float
 
 
+def shape_starts(params: ModelParameters, rounding_starts: Sequence[float] = ROUNDING_STARTS_M) -> tuple[float, ...]:
+    """The ``contact_rounding`` values [m] a fit of ``params`` starts from: ``rounding_starts``
+    when ``contact_rounding`` is free, none (one fit from ``params`` itself) when it is frozen."""
+    return tuple(rounding_starts) if "contact_rounding" in params.free_names else ()
+
+
 def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult] = fit_lsq,
                     rounding_starts: Sequence[float] = ROUNDING_STARTS_M, label: str = "fitting",
                     progress: Callable[[str], None] | None = None) -> ShapeFits:
@@ -90,16 +96,17 @@ def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult] 
     starting rounding of each fit.
     """
     start = objective.params
-    if "contact_rounding" not in start.free_names or not rounding_starts:
+    starts = shape_starts(start, rounding_starts)
+    if not starts:
         result = fit(objective)
         return ShapeFits(result, ((float(start.contact_rounding), result.cost),), result.seconds)
     results = []
-    for r0 in rounding_starts:
+    for r0 in starts:
         if progress is not None:
             progress(f"{label} from contact_rounding {r0:g} m")
         results.append(fit(objective.with_params(start.with_values(contact_rounding=r0))))
     return ShapeFits(min(results, key=lambda r: r.cost),
-                     tuple((float(r0), r.cost) for r0, r in zip(rounding_starts, results)),
+                     tuple((float(r0), r.cost) for r0, r in zip(starts, results)),
                      sum(r.seconds for r in results))
 
 
