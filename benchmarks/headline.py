@@ -69,13 +69,17 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
                 right = sum(r["named"] == r["effect"] for r in rows)
                 levels.append(f"{right}/{len(rows)} {level.replace('_', ' ')}")
         nulls = [r for r in mine if r["effect"] is None]
-        label = "this simulator's" if s["engine"] == "sim" else "MuJoCo's"
-        out.append((f"missing effect named first, on {label} runs (seeds {', '.join(map(str, doc['meta']['seeds']))})",
+        law = doc["meta"].get("mujoco_contact_law", "compliant")
+        where = "on this simulator's runs" if s["engine"] == "sim" else "on MuJoCo's runs"
+        if s["engine"] == "mujoco" and law != "compliant":
+            where += (", each diagnosis choosing its contact law" if law == "choose"
+                      else f", diagnosed under the {law.replace('_', '-')} law")
+        out.append((f"missing effect named first, {where} (seeds {', '.join(map(str, doc['meta']['seeds']))})",
                     f"{_pct(s['named_first_rate'])} ({', '.join(levels)}); {_pct(s['false_positive_rate'])} "
                     f"false positives on {len(nulls)} nulls", f"{targets.get(s['engine'], '-')}; none"))
         pairs = [r for r in mine if r["level"] == "pair"]
         if pairs:
-            out.append((f"two effects hidden together, both named, on {label} runs",
+            out.append((f"two effects hidden together, both named, {where}",
                         f"{sum(r['all_named'] for r in pairs)} of {len(pairs)} pairs", ">= 80 %"))
     return out
 
@@ -173,7 +177,8 @@ def _faults(doc: dict) -> list[tuple[str, str, str]]:
 
 #: Results file -> how its headline rows are read.
 SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
-    "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix, "diagnose_accuracy": _accuracy,
+    "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix,
+    "diagnose_matrix_soft_constraint": _matrix, "diagnose_accuracy": _accuracy,
     "mujoco_robustness": _robustness,
     "mujoco_robustness_stiff": _robustness, "mujoco_fit": _mujoco_fit, "contact_time_constant": _contact_time_constant,
     "contact_law": _contact_law,

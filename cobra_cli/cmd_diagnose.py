@@ -7,8 +7,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from cobra_cli.cmd_check import check_before_fit
-from cobra_cli.common import add_contact_option, check_writable, fit_start
+from cobra_cli.common import add_contact_option, check_writable, law_starts
 from cobra_model.errors import InputError
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
@@ -29,7 +28,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print diagnosis.json instead of the summary")
     p.add_argument("--max-effects", type=int, default=2, help="effects to look for in turn (default 2)")
     p.add_argument("--params", help="starting parameter file (default nominal)")
-    add_contact_option(p, "fit and diagnose")
+    add_contact_option(p, "fit and diagnose", choose=True)
     p.add_argument("--free", help="comma-separated parameters the fits tune (default: all not frozen that the "
                    "contact law reads)")
     p.add_argument("--fit-runs", type=int, default=DiagnoseConfig.fit_runs,
@@ -60,16 +59,14 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
             check_writable(out / name, force)
     if max_effects < 0:
         raise InputError(f"--max-effects must be >= 0, got {max_effects}")
-    start = fit_start(params, contact_law, free, out=sys.stderr if json_out else sys.stdout)
     train_paths, val_paths = expand(list(runs))
     val_paths += [Path(p) for p in holdout]
     if not train_paths or not val_paths:
         raise InputError("diagnose needs training runs and held-out runs (--holdout, or a manifest's validation)")
     train, held = read_runs(train_paths), read_runs(val_paths)
-    data_check = None
-    if check:
-        # with --json, stdout carries only the JSON
-        start, data_check = check_before_fit(train, start, held_out=held, out=sys.stderr if json_out else None)
+    # with --json, stdout carries only the JSON
+    starts, checks = law_starts(params, contact_law, free, None, train, held, check=check,
+                                out=sys.stderr if json_out else sys.stdout)
     config = DiagnoseConfig(max_effects=max_effects, fit_runs=fit_runs)
     from tqdm import tqdm
     bar = tqdm(desc="diagnose", unit="step", leave=False, disable=None)
@@ -78,11 +75,14 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
         bar.update(1)
         bar.set_postfix_str(message)
         if bar.disable:
-            print(f"  ... {message}", flush=True)
+            print(f"  ... {message}", flush=True, file=sys.stderr if json_out else sys.stdout)  # --json: stdout is the JSON
 
-    result = diagnose(train, held, params=start, config=config, progress=progress)
+    if contact_law == "choose":
+        result = diagnose(train, held, law_starts=starts, config=config, progress=progress)
+    else:
+        result = diagnose(train, held, params=next(iter(starts.values())), config=config, progress=progress)
     bar.close()
-    doc = write_diagnosis(result, out, data_check)
+    doc = write_diagnosis(result, out, checks[result.params_before.contact_law])
     if json_out:
         print(json.dumps(doc, indent=2, default=float))
         return 0

@@ -5,8 +5,7 @@ import argparse
 import json
 from pathlib import Path
 
-from cobra_cli.cmd_check import check_before_fit
-from cobra_cli.common import add_contact_option, check_writable, fit_start
+from cobra_cli.common import add_contact_option, check_writable, law_starts
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 from sysid.identification.executor import make_executor
@@ -25,7 +24,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=("lsq", "ppo"), default="lsq", help="least squares (default) or PPO")
     p.add_argument("--holdout", nargs="*", default=[], metavar="RUN", help="held-out runs (added to a manifest's)")
     p.add_argument("--params", help="starting parameter file (default: nominal)")
-    add_contact_option(p, "fit")
+    add_contact_option(p, "fit", choose=True)
     p.add_argument("--free", help="comma-separated names to tune (default: every parameter not frozen that the "
                    "contact law reads)")
     p.add_argument("--frozen", help="comma-separated names to hold fixed")
@@ -73,22 +72,32 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--report {report_dir}: exists and is not a directory")
         if report_dir.exists():
             check_writable(report_dir / "report.html", args.force)
-    params = fit_start(args.params, args.contact, args.free, args.frozen)
+    choosing = args.contact == "choose"
+    if choosing and args.method != "lsq":
+        raise InputError("--contact choose: only least squares fits each contact law (--method lsq)")
+    if args.current and args.method != "lsq":
+        raise InputError("--current: only least squares fits the motor current (--method lsq)")
     train_paths, val_paths = expand(args.runs)
     val_paths += [Path(p) for p in args.holdout]
     if not train_paths:
         raise InputError("no training runs given")
+    if choosing and not val_paths:
+        raise InputError("--contact choose needs held-out runs to choose on (--holdout RUN..., or a dataset "
+                         "manifest with a validation split); none given")
     train = read_runs(train_paths)
     validation = read_runs(val_paths)
-    check = None
-    if not args.no_check:
-        params, check = check_before_fit(train, params, held_out=validation)
+    starts, checks = law_starts(args.params, args.contact, args.free, args.frozen, train, validation,
+                                check=not args.no_check)
+    params = next(iter(starts.values()))
     executor = make_executor(args.executor, workers=args.workers, ray_address=args.ray_address)
-    if args.current and args.method != "lsq":
-        raise InputError("--current: only least squares fits the motor current (--method lsq)")
-    objective = Objective(train, params, Weights(use_current=args.current), executor=executor)
-    print(f"fitting {', '.join(params.free_names)} on {len(train)} runs ({len(validation)} held out) "
-          f"by {args.method}, {params.contact_law} contact law")
+    weights = Weights(use_current=args.current)
+    if choosing:
+        print(f"fitting each contact law on {len(train)} runs, keeping the one with the lower cost on the "
+              f"{len(validation)} held-out runs: "
+              + "; ".join(f"{law}: {', '.join(p.free_names)}" for law, p in starts.items()))
+    else:
+        print(f"fitting {', '.join(params.free_names)} on {len(train)} runs ({len(validation)} held out) "
+              f"by {args.method}, {params.contact_law} contact law")
     from tqdm import tqdm
     bar = tqdm(desc=args.method, unit="it", leave=False, disable=None)
 
@@ -96,19 +105,33 @@ def run(args: argparse.Namespace) -> int:
         bar.update(1)
         bar.set_postfix(cost=f"{cost:.4g}", s=f"{seconds:.0f}")
 
+    choice = None
     if args.method == "lsq":
-        from sysid.identification.contact_choice import fit_from_shapes, shape_starts
+        from sysid.identification.contact_choice import choose_contact_law, fit_from_shapes, shape_starts
         from sysid.identification.lsq import fit_lsq
-        # contact_rounding free: one fit from each shape of the module ends, the lowest cost kept
-        fits = max(1, len(shape_starts(params)))
+        # contact_rounding free: one fit from each shape of the module ends, the lowest cost kept;
+        # the budget is shared by every fit (each shape, each law)
+        fits = sum(max(1, len(shape_starts(p))) for p in starts.values())
         budget = args.budget_seconds / fits if args.budget_seconds is not None else None
-        shapes = fit_from_shapes(objective, lambda o: fit_lsq(o, max_iterations=args.max_iterations,
-                                                              budget_seconds=budget, progress=progress),
-                                 label="fitting", progress=lambda line: bar.write(line))
-        result = shapes.best
-        if len(shapes.starts) > 1:
+
+        def lsq(o: Objective) -> FitResult:
+            return fit_lsq(o, max_iterations=args.max_iterations, budget_seconds=budget, progress=progress)
+
+        if choosing:
+            choice = choose_contact_law(train, validation, weights=weights, fit=lsq, starts=starts,
+                                        executor=executor, progress=lambda line: bar.write(line))
+            for f in choice.fits:
+                print(f"  {f.law:15s} training cost {f.fit.cost:.4g}, held-out cost {f.held_out_cost:.4g}"
+                      + ("  <- chosen" if f.law == choice.chosen else ""))
+            result, params = choice.best.fit, starts[choice.chosen]
+            shapes_starts = choice.best.starts
+        else:
+            shapes = fit_from_shapes(Objective(train, params, weights, executor=executor), lsq,
+                                     label="fitting", progress=lambda line: bar.write(line))
+            result, shapes_starts = shapes.best, shapes.starts
+        if len(shapes_starts) > 1:
             print("training cost from each starting contact_rounding: "
-                  + ", ".join(f"{r0:g} m -> {cost:.4g}" for r0, cost in shapes.starts))
+                  + ", ".join(f"{r0:g} m -> {cost:.4g}" for r0, cost in shapes_starts))
     else:
         from sysid.identification.ppo import fit_ppo
         curve = report_dir / "reward_curve.png" if report_dir else None
@@ -119,12 +142,15 @@ def run(args: argparse.Namespace) -> int:
             bar.set_postfix(best=f"{best_total:.4g}", reward=f"{mean_reward:.4g}")
 
         bar.total = args.timesteps
-        result = fit_ppo(objective, budget_seconds=args.budget_seconds, total_timesteps=args.timesteps,
-                         seed=args.seed, n_envs=args.envs, progress=ppo_progress, curve_png=curve)
+        result = fit_ppo(Objective(train, params, weights, executor=executor), budget_seconds=args.budget_seconds,
+                         total_timesteps=args.timesteps, seed=args.seed, n_envs=args.envs, progress=ppo_progress,
+                         curve_png=curve)
     bar.close()
     executor.close()
     fitted = result.params
-    out.write_text(json.dumps(fit_document(result, train_paths, check), indent=2, default=float) + "\n")
+    out.write_text(json.dumps(fit_document(result, train_paths, checks[params.contact_law],
+                                           choice.to_json() if choice is not None else None),
+                              indent=2, default=float) + "\n")
     print(f"{result.status.value} after {result.evaluations} evaluations in {result.seconds:.1f} s; "
           f"cost {result.initial_cost:.4g} -> {result.cost:.4g}")
     print(f"  {'parameter':16s} {'nominal':>10s} {'start':>10s} {'fitted':>10s} {'95% interval':>25s}  note")
@@ -148,7 +174,8 @@ def run(args: argparse.Namespace) -> int:
     if validation:
         from sysid.gap.report import evaluate_held_out, head_text
         held = evaluate_held_out(validation, params, fitted)
-        print("held-out runs, before -> after: final head error, joint RMSE")
+        print("held-out runs, before -> after: final head error, joint RMSE"
+              + (" (these runs also chose the contact law, which favours the after figures)" if choosing else ""))
         for h in held:
             b, a = h.gap_before, h.gap_after
             print(f"  {h.name:22s} {h.freq_hz:5.2f} Hz  head {head_text(b.head.final, a.head.final)}, "

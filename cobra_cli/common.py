@@ -4,10 +4,14 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import TextIO
+from typing import TYPE_CHECKING, Sequence, TextIO
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import CONTACT_LAWS, ModelParameters
+from cobra_model.run import Run
+
+if TYPE_CHECKING:
+    from sysid.identification.datacheck import DataCheck
 
 
 def load_params(path: str | Path | None, contact_law: str | None = None) -> ModelParameters:
@@ -47,13 +51,51 @@ def fit_start(path: str | Path | None, contact_law: str | None, free: str | None
     return params.with_frozen(frozen=frozen_names)  # the user's --frozen still holds
 
 
-def add_contact_option(p: argparse.ArgumentParser, what: str) -> None:
-    """``--contact LAW``: the contact law to {what} with, overriding the parameter file's."""
-    p.add_argument("--contact", choices=CONTACT_LAWS, default=None,
+def law_starts(path: str | Path | None, contact_law: str | None, free: str | None, frozen: str | None,
+               train: Sequence[Run], held_out: Sequence[Run], *, check: bool, out: TextIO | None = None
+               ) -> tuple[dict[str, ModelParameters], dict[str, DataCheck | None]]:
+    """The starting parameters of ``cobra fit`` and ``cobra diagnose`` per contact law they try:
+    every law of :data:`CONTACT_LAWS` for ``--contact choose``, else the one law given (the
+    parameter file's when None), each from :func:`fit_start`, with the data check's frozen
+    parameters when ``check`` (run per law: each law frees its own ground parameters). Returns
+    (law -> start, law -> data check or None); findings go to ``out`` (default stdout).
+
+    Raises:
+        InputError: ``--free`` with ``choose`` (each law fits the free set it reads), or what
+            :func:`fit_start` and the data check raise.
+    """
+    from cobra_cli.cmd_check import check_before_fit
+
+    choosing = contact_law == "choose"
+    if choosing and free:
+        raise InputError("--contact choose fits each law with the free set it reads; drop --free, or give "
+                         "--contact compliant or --contact soft_constraint with it")
+    starts: dict[str, ModelParameters] = {}
+    checks: dict[str, DataCheck | None] = {}
+    for law in CONTACT_LAWS if choosing else (contact_law,):
+        start = fit_start(path, law, free, frozen, out=out)
+        data_check = None
+        if check:
+            if choosing:
+                print(f"data check of the {law} contact law's free parameters:", file=out or sys.stdout)
+            start, data_check = check_before_fit(train, start, held_out=held_out, out=out)
+        starts[start.contact_law], checks[start.contact_law] = start, data_check
+    return starts, checks
+
+
+def add_contact_option(p: argparse.ArgumentParser, what: str, choose: bool = False) -> None:
+    """``--contact LAW``: the contact law to {what} with, overriding the parameter file's; with
+    ``choose``, also ``--contact choose`` (fit every law, keep the one that predicts the held-out
+    runs best)."""
+    p.add_argument("--contact", choices=(*CONTACT_LAWS, "choose") if choose else CONTACT_LAWS, default=None,
                    help=f"contact law to {what} with: 'compliant' (spring-damper ground, Stribeck friction) or "
                         "'soft_constraint' (MuJoCo's: a soft constraint on the friction pyramid, time constant "
-                        "from the parameter contact_time_constant) (default: the parameter file's law, which a "
-                        "fit records; compliant for the nominal parameters)")
+                        "from the parameter contact_time_constant)"
+                        + (", or 'choose': fit each law with its own ground parameters free and keep the one "
+                           "with the lower cost on the held-out runs (least squares; needs held-out runs)"
+                           if choose else "")
+                        + " (default: the parameter file's law, which a fit records; compliant for the nominal "
+                          "parameters)")
 
 
 def check_writable(path: str | Path, force: bool) -> Path:

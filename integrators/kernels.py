@@ -389,14 +389,6 @@ def check_state(v, max_speed):
 
 
 @njit(cache=True)
-def measured_angles(q, nq, act, out):
-    """Encoder reading [rad]: the joint angles plus each joint's encoder zero offset."""
-    nj = act.shape[0]
-    for j in range(nj):
-        out[j] = q[nq - nj + j] + act[j, A_ENC_OFFSET]
-
-
-@njit(cache=True)
 def control_tick(q, goal, act, scal, integ, prev_err, duty):
     """One tick of every servo's position loop (backlash as a dead zone on the error)."""
     nj = act.shape[0]

@@ -493,8 +493,7 @@ class Simulator:
         n_rec = n_steps // record_every + 1
         nj, nq, nv = self.model.n_joints, self.model.nq, self.model.nv
         T = state.t + np.arange(n_rec) * record_every * s.dt
-        Q, V = np.empty((n_rec, nq)), np.empty((n_rec, nv))
-        G, M, C = np.empty((n_rec, nj)), np.empty((n_rec, nj)), np.empty((n_rec, nj))
+        Q, V, C = np.empty((n_rec, nq)), np.empty((n_rec, nv)), np.empty((n_rec, nj))
         integ, prev_err = state.integ.copy(), state.prev_err.copy()
         duty, current = state.duty.copy(), state.current.copy()
         q, v = state.q.copy(), state.v.copy()
@@ -509,14 +508,12 @@ class Simulator:
         pre, post, aba = K.pre_step, K.post_step, pin.aba
         advance = None if self._momentum is None and self.contact_law == "compliant" else self._advance
         for i in range(n_steps + 1):
-            goal = goals[i // sub]
             if i % record_every == 0:
                 r = i // record_every
-                Q[r], V[r], G[r], C[r] = q, v, goal, current
-                K.measured_angles(q, nq, act, M[r])
+                Q[r], V[r], C[r] = q, v, current
             if i == n_steps:
                 break
-            status = pre(i % sub == 0, q, v, goal, integ, prev_err, duty, on, act, scal, ground,
+            status = pre(i % sub == 0, q, v, goals[i // sub], integ, prev_err, duty, on, act, scal, ground,
                          floating, ci, cR, cf, fi, ff, tau, current, X, F, kR, kv)
             if status:
                 self._raise(status, state.t + i * s.dt, q, v)
@@ -532,4 +529,8 @@ class Simulator:
                 progress(i / n_steps)
         if progress is not None:
             progress(1.0)
+        # the goals and encoder readings of the recorded samples, taken after the loop (one array
+        # operation each instead of one call per sample; the same values)
+        G = goals[(np.arange(n_rec) * record_every) // sub]
+        M = Q[:, nq - nj:] + act[:, K.A_ENC_OFFSET]
         return Trajectory(T, Q, V, G, M, C)

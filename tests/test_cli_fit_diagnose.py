@@ -193,6 +193,57 @@ def test_fit_with_the_ends_shape_free_starts_from_each_shape_and_keeps_the_cheap
     assert json.loads(out.read_text())["fit"]["cost"] == pytest.approx(min(costs.values()), rel=1e-3)
 
 
+@pytest.mark.slow
+def test_fit_chooses_the_contact_law_that_predicts_the_held_out_run(soft_data, tmp_path, capsys):
+    """``cobra fit --contact choose`` fits each law with the ground parameters it reads and keeps
+    the one with the lower held-out cost: on runs of the soft-constraint law, that law (no value
+    of the compliant ground's spring, damper and Stribeck curve reproduces a soft constraint,
+    ``benchmarks/results/contact_law.md``), recording both laws' fits in the parameter file."""
+    train, hold = soft_data
+    out = tmp_path / "chosen.json"
+    assert main(["fit", *map(str, train), "--holdout", str(hold), "--contact", "choose", "--frozen",
+                 "armature,joint_damping,motor_km,contact_rounding", "--max-iterations", "4", "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    fitted = ModelParameters.load(out)
+    assert fitted.contact_law == "soft_constraint"
+    assert abs(fitted.mu_c - 0.22) < 0.01 and abs(fitted.contact_time_constant - 0.03) < 0.0045  # 15 %
+    choice = json.loads(out.read_text())["fit"]["contact_choice"]
+    held = {f["law"]: f["held_out_cost"] for f in choice["fits"]}
+    assert choice["chosen"] == "soft_constraint" and held["soft_constraint"] < 0.5 * held["compliant"]
+    assert "k1" in {n for f in choice["fits"] if f["law"] == "compliant" for n in f["params"]}
+    assert "these runs also chose the contact law" in printed
+
+
+@pytest.mark.slow
+def test_diagnose_chooses_the_contact_law_by_the_held_out_cost_after_the_effects(soft_data, tmp_path, capsys):
+    """``cobra diagnose --contact choose`` diagnoses under each law and keeps the diagnosis with
+    the lower held-out cost after its effects: the truth's soft constraint, under which nothing
+    is named (the runs hide no effect)."""
+    train, hold = soft_data
+    assert main(["diagnose", *map(str, train), "--holdout", str(hold), "--contact", "choose", "--max-effects", "1",
+                 "--out", str(tmp_path / "d"), "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    choice = doc["contact_choice"]
+    held = {f["law"]: f["held_out_cost"] for f in choice["laws"]}
+    assert choice["chosen"] == "soft_constraint" and held["soft_constraint"] < 0.5 * held["compliant"]
+    assert doc["effects"] == []
+    assert ModelParameters.load(tmp_path / "d" / "augmented_params.json").contact_law == "soft_constraint"
+    assert "contact law: soft_constraint" in doc["verdict"]
+
+
+@pytest.mark.parametrize("extra, message", [
+    ([], "--contact choose needs held-out runs to choose on"),
+    (["--holdout", "HOLD", "--free", "mu_c"], "--contact choose fits each law with the free set it reads"),
+    (["--holdout", "HOLD", "--method", "ppo"], "--contact choose: only least squares fits each contact law"),
+])
+def test_fit_refuses_to_choose_the_contact_law_without_what_it_needs(soft_data, tmp_path, capsys, extra, message):
+    train, hold = soft_data
+    extra = [str(hold) if a == "HOLD" else a for a in extra]
+    out = tmp_path / "never.json"
+    assert main(["fit", *map(str, train), "--contact", "choose", *extra, "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err and not out.exists()
+
+
 def test_check_and_diagnose_judge_the_parameters_of_the_law(soft_data, tmp_path, capsys):
     """``cobra check --contact soft_constraint`` judges the law's own parameters (the time constant,
     not the compliant ground's springs), and ``cobra diagnose`` refuses to fit what the law ignores."""

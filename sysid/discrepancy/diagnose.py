@@ -41,7 +41,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 
@@ -241,6 +241,7 @@ class Diagnosis:
     verdict: str = ""
     structural: list[StructuralDifference] = field(default_factory=list)
     weights: Weights = field(default_factory=Weights)
+    contact_choice: dict | None = None  # {"chosen": law, "laws": [each law's outcome]} when the law was chosen
 
     def to_json(self) -> dict:
         return {
@@ -248,6 +249,7 @@ class Diagnosis:
             "channel_scales": {"head_scale_m": self.weights.head_scale_m,
                                "joint_scale_rad": self.weights.joint_scale_rad},
             "structural": [s.to_json() for s in self.structural],
+            "contact_choice": self.contact_choice,
             "gap_before": self.gap_before.to_json() if self.gap_before else None,
             "gap_after": self.gap_after.to_json() if self.gap_after else None,
             "signature": self.signature.to_json() if self.signature else None,
@@ -277,6 +279,9 @@ def verdict(d: Diagnosis) -> str:
         parts.append("no library effect explains the gap" + (" significantly" if not d.structural else ""))
     if not d.effects or d.structural:
         parts.append("residual signature: " + (d.signature.summary() if d.signature else "-"))
+    if d.contact_choice is not None:
+        parts.append(f"contact law: {d.contact_choice['chosen']} (the lowest held-out cost after each law's "
+                     "diagnosis)")
     return "; ".join(parts)
 
 
@@ -585,17 +590,30 @@ def _spread(runs: Sequence[Run], n: int) -> list[Run]:
 
 def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParameters | None = None,
              library: EffectLibrary | None = None, config: DiagnoseConfig = DiagnoseConfig(),
+             law_starts: Mapping[str, ModelParameters] | None = None,
              progress: Callable[[str], None] = lambda msg: None) -> Diagnosis:
     """Run the workflow; ``params`` gives the starting values and which parameters are free.
 
+    With ``law_starts`` (contact law -> its starting parameters and free set; ``params`` must
+    then be None) the workflow runs under each law and the diagnosis whose final model has the
+    lowest held-out cost is kept: the ground's structure is a choice between models
+    (``sysid.identification.contact_choice``), made on runs no fit has seen, as an effect is
+    named. The choice is made after the effects, not on the base fits: a law whose ground can
+    bend toward a missing effect (the compliant ground's shape toward anisotropic friction on
+    MuJoCo's runs) fits the base model better and would then hide the effect.
+
     Raises:
         InputError: without a training run or a held-out run (candidates are judged on runs
-            no fit has seen).
+            no fit has seen), or with both ``params`` and ``law_starts``.
     """
     if not train or not holdout:
         missing = " and ".join(w for w, rs in (("a training run", train), ("a held-out run", holdout)) if not rs)
         raise InputError(f"diagnose needs {missing}: candidate effects are judged on held-out runs that no "
                          f"fit has seen (got {len(train)} training, {len(holdout)} held-out)")
+    if law_starts is not None:
+        if params is not None or not law_starts:
+            raise InputError("diagnose: give either params or law_starts (one start per contact law), not both")
+        return _diagnose_each_law(train, holdout, law_starts, library, config, progress)
     t0 = time.perf_counter()
     library = library or EffectLibrary()
     start = params or ModelParameters.nominal()
@@ -678,3 +696,28 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     result.verdict = verdict(result)
     result.seconds = time.perf_counter() - t0
     return result
+
+
+def _diagnose_each_law(train: Sequence[Run], holdout: Sequence[Run], law_starts: Mapping[str, ModelParameters],
+                       library: EffectLibrary | None, config: DiagnoseConfig,
+                       progress: Callable[[str], None]) -> Diagnosis:
+    """:func:`diagnose` under each contact law of ``law_starts``; the diagnosis whose final
+    model has the lowest held-out cost (the objective's default weights, the same for every
+    law), with every law's outcome in its ``contact_choice``."""
+    t0 = time.perf_counter()
+    outcomes = []
+    for law, start in law_starts.items():
+        d = diagnose(train, holdout, params=start, library=library, config=config,
+                     progress=lambda message, law=law: progress(f"{law} contact law: {message}"))
+        final = d.params_after
+        outcomes.append((float(Objective(list(holdout), final)(final.as_vector())), law, d))
+    cost, law, chosen = min(outcomes, key=lambda o: o[0])
+    chosen.contact_choice = {"chosen": law, "laws": [
+        {"law": name, "held_out_cost": c, "effects": [e.name for e in d.effects],
+         "structural": [s.name for s in d.structural], "seconds": d.seconds}
+        for c, name, d in outcomes]}
+    progress(f"{law} contact law kept (held-out cost {cost:.4g}; "
+             + ", ".join(f"{name} {c:.4g}" for c, name, _ in outcomes if name != law) + ")")
+    chosen.verdict = verdict(chosen)
+    chosen.seconds = time.perf_counter() - t0
+    return chosen

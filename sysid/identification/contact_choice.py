@@ -20,13 +20,14 @@ rounding, from 0, 2.25 and 4.5 cm alike; the compliant law's mostly reach 4.5 cm
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 from cobra_model import design
 from cobra_model.errors import InputError
 from cobra_model.parameters import CONTACT_LAWS, ModelParameters
 from cobra_model.run import Run
 from integrators.kernels import CONTACT_LAW_PARAMETERS
+from sysid.identification.executor import Executor, LocalExecutor
 from sysid.identification.lsq import FitResult, fit_lsq
 from sysid.identification.objective import Objective, Weights
 
@@ -149,6 +150,7 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
                        laws: Sequence[str] = CONTACT_LAWS, weights: Weights | None = None,
                        rounding_starts: Sequence[float] = ROUNDING_STARTS_M,
                        fit: Callable[[Objective], FitResult] = fit_lsq,
+                       starts: Mapping[str, ModelParameters] | None = None, executor: Executor | None = None,
                        progress: Callable[[str], None] | None = None) -> ContactChoice:
     """Fit each contact law on ``train`` and choose the one with the lowest cost on ``held_out``.
 
@@ -161,6 +163,10 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
         rounding_starts: the ``contact_rounding`` values [m] each law's fit starts from (the lowest
             training cost is kept).
         fit: the fitting method (default least squares with its defaults).
+        starts: per law, its starting parameters with their free set (overriding ``start`` and
+            :data:`LAW_FREE` for that law; ``cobra fit --contact choose`` passes the free set
+            the data check left each law).
+        executor: where the objectives' evaluations run (default in-process).
         progress: called with a line per law.
 
     Raises:
@@ -175,13 +181,18 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
         raise InputError("rounding_starts: give at least one starting contact_rounding [m]")
     start = start if start is not None else ModelParameters.nominal()
     weights = weights if weights is not None else Weights()
+    executor = executor if executor is not None else LocalExecutor(1)
     fits = []
     for law in laws:
-        law_start = start.with_contact_law(law).with_frozen(free=LAW_FREE[law])
-        shapes = fit_from_shapes(Objective(train, law_start, weights), fit, rounding_starts,
-                                 f"fitting the {law} contact law ({len(LAW_FREE[law])} free parameters)", progress)
+        law_start = (starts[law] if starts is not None and law in starts
+                     else start.with_contact_law(law).with_frozen(free=LAW_FREE[law]))
+        if law_start.contact_law != law:
+            raise InputError(f"starts[{law!r}] is under the {law_start.contact_law} contact law")
+        shapes = fit_from_shapes(Objective(train, law_start, weights, executor=executor), fit, rounding_starts,
+                                 f"fitting the {law} contact law ({len(law_start.free_names)} free parameters)",
+                                 progress)
         result = shapes.best
-        held = Objective(held_out, result.params, weights)(result.params.as_vector())
+        held = Objective(held_out, result.params, weights, executor=executor)(result.params.as_vector())
         fits.append(LawFit(law, result, float(held), shapes.starts, shapes.seconds))
         if progress is not None:
             progress(f"  {law}: training cost {result.cost:.4g}, held-out cost {held:.4g}")

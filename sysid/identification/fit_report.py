@@ -9,12 +9,17 @@ from sysid.identification.datacheck import DataCheck
 from sysid.identification.lsq import FitResult
 
 
-def fit_document(result: FitResult, train_runs: Sequence[Path], check: DataCheck | None) -> dict:
+def fit_document(result: FitResult, train_runs: Sequence[Path], check: DataCheck | None,
+                 contact_choice: dict | None = None) -> dict:
     """The fitted parameter file's content: the parameters (``ModelParameters.to_json_dict``)
-    with a ``"fit"`` record: the fit's result, its training runs and the data check."""
+    with a ``"fit"`` record: the fit's result, its training runs, the data check and, when the
+    contact law was chosen (``cobra fit --contact choose``), every law's fit and costs
+    (``ContactChoice.to_json``)."""
     doc = result.params.to_json_dict()
     doc["fit"] = {**result.to_json(), "train_runs": [str(p) for p in train_runs],
                   "data_check": check.to_json_dict() if check is not None else None}
+    if contact_choice is not None:
+        doc["fit"]["contact_choice"] = contact_choice
     return doc
 
 

@@ -45,7 +45,7 @@ from __future__ import annotations
 import os
 import sys
 import time
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stdout
 import dataclasses
 from dataclasses import dataclass, field
 from enum import Enum
@@ -195,11 +195,13 @@ class FitResult:
 
 @contextmanager
 def _quiet_stdout() -> Iterator[None]:
-    """Silence C-level writes to stdout (qpOASES prints a banner when first constructed)."""
+    """Silence writes to stdout, C-level and Python-level (qpOASES prints a banner when first
+    constructed; CasADi sends it to Python's ``sys.stdout`` where that is not the process's
+    standard output, as in a notebook or under pytest's capture)."""
     sys.stdout.flush()
     saved = os.dup(1)
     try:
-        with open(os.devnull, "w") as null:
+        with open(os.devnull, "w") as null, redirect_stdout(null):
             os.dup2(null.fileno(), 1)
             yield
     finally:
