@@ -28,7 +28,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", action="store_true", help="print diagnosis.json instead of the summary")
     p.add_argument("--max-effects", type=int, default=2, help="effects to look for in turn (default 2)")
     p.add_argument("--params", help="starting parameter file (default nominal)")
-    add_contact_option(p, "fit and diagnose", choose=True)
+    add_contact_option(p, "fit and diagnose", choose="diagnose under each law and keep the diagnosis whose "
+                       "final model has the lower held-out cost (twice the time)")
     p.add_argument("--free", help="comma-separated parameters the fits tune (default: all not frozen that the "
                    "contact law reads)")
     p.add_argument("--fit-runs", type=int, default=DiagnoseConfig.fit_runs,

@@ -24,7 +24,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--method", choices=("lsq", "ppo"), default="lsq", help="least squares (default) or PPO")
     p.add_argument("--holdout", nargs="*", default=[], metavar="RUN", help="held-out runs (added to a manifest's)")
     p.add_argument("--params", help="starting parameter file (default: nominal)")
-    add_contact_option(p, "fit", choose=True)
+    add_contact_option(p, "fit", choose="fit each law with the ground parameters it reads and keep the one with "
+                       "the lower cost on the held-out runs (least squares; needs held-out runs)")
     p.add_argument("--free", help="comma-separated names to tune (default: every parameter not frozen that the "
                    "contact law reads)")
     p.add_argument("--frozen", help="comma-separated names to hold fixed")

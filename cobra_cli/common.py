@@ -83,17 +83,14 @@ def law_starts(path: str | Path | None, contact_law: str | None, free: str | Non
     return starts, checks
 
 
-def add_contact_option(p: argparse.ArgumentParser, what: str, choose: bool = False) -> None:
+def add_contact_option(p: argparse.ArgumentParser, what: str, choose: str = "") -> None:
     """``--contact LAW``: the contact law to {what} with, overriding the parameter file's; with
-    ``choose``, also ``--contact choose`` (fit every law, keep the one that predicts the held-out
-    runs best)."""
+    ``choose`` (what choosing does, for the help), also ``--contact choose``."""
     p.add_argument("--contact", choices=(*CONTACT_LAWS, "choose") if choose else CONTACT_LAWS, default=None,
                    help=f"contact law to {what} with: 'compliant' (spring-damper ground, Stribeck friction) or "
                         "'soft_constraint' (MuJoCo's: a soft constraint on the friction pyramid, time constant "
                         "from the parameter contact_time_constant)"
-                        + (", or 'choose': fit each law with its own ground parameters free and keep the one "
-                           "with the lower cost on the held-out runs (least squares; needs held-out runs)"
-                           if choose else "")
+                        + (f", or 'choose': {choose}" if choose else "")
                         + " (default: the parameter file's law, which a fit records; compliant for the nominal "
                           "parameters)")
 
