@@ -433,7 +433,8 @@ def integrate(q, v, a, dt, floating, q_out, v_out):
 
     The free-flyer part is Pinocchio's ``integrate`` for its joint: ``M+ = M exp6(dt v+)``
     with the SE(3) exponential in the root frame (``tests/test_kernels.py`` checks equality
-    with ``pin.integrate``); revolute coordinates add ``dt qdot+``.
+    with ``pin.integrate``); revolute coordinates add ``dt qdot+``. ``q_out``, ``v_out`` may be
+    ``q``, ``v`` (every entry is read before it is written).
     """
     nv = v.shape[0]
     for i in range(nv):
@@ -494,6 +495,65 @@ def post_step(q, v, a, scal, floating, q_out, v_out):
     """:func:`integrate` then :func:`check_state` on the new velocity; returns the status."""
     integrate(q, v, a, scal[S_DT], floating, q_out, v_out)
     return check_state(v_out, scal[S_MAX_SPEED])
+
+
+#: Slots of a rollout's ``plan`` (int64 array) for :func:`rollout_step`: physics steps, steps per
+#: servo tick, steps per recorded sample, whether the kernel integrates (not the momentum
+#: scheme), whether the root floats.
+P_STEPS, P_SUBSTEPS, P_RECORD_EVERY, P_INTEGRATE, P_FLOATING = 0, 1, 2, 3, 4
+N_PLAN = 5
+
+
+def workspace_size(n_features: int, n_bodies: int) -> int:
+    """Length of the flat workspace :func:`rollout_step` takes: contact points ``X`` and forces
+    ``F`` (n_features, 3) each, body rotations (n_bodies, 3, 3) and velocities (n_bodies, 6, 3)."""
+    return 6 * n_features + 27 * n_bodies
+
+
+@njit(cache=True)
+def workspace_views(work, n_features, n_bodies):
+    """``X``, ``F``, ``kin_R``, ``kin_v`` as views of the flat ``work`` (:func:`workspace_size`)."""
+    nf, nb = n_features, n_bodies
+    return (work[:3 * nf].reshape((nf, 3)), work[3 * nf:6 * nf].reshape((nf, 3)),
+            work[6 * nf:6 * nf + 9 * nb].reshape((nb, 3, 3)), work[6 * nf + 9 * nb:6 * nf + 27 * nb].reshape((nb, 6, 3)))
+
+
+@njit(cache=True)
+def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R, chain_f,
+                 feat_i, feat_f, tau, work, record):
+    """Step ``i`` of a rollout in one compiled call (one call per physics step, not three).
+
+    1. when ``i > 0`` and ``plan[P_INTEGRATE]``: finish step ``i - 1`` with the acceleration ``a``
+       (nv,) it produced: :func:`integrate` in place on ``q``, ``v``, then :func:`check_state`;
+    2. when ``i`` is a multiple of ``plan[P_RECORD_EVERY]``: write ``q``, ``v`` and the motor
+       current ``servo[3]`` of step ``i - 1`` into row ``i // plan[P_RECORD_EVERY]`` of ``record``
+       (N, nq + nv + nj);
+    3. when ``i < plan[P_STEPS]``: :func:`pre_step` with the servo goals ``goals[i //
+       plan[P_SUBSTEPS]]`` (the loop ticks on multiples of ``plan[P_SUBSTEPS]``) into ``tau``.
+
+    ``servo`` (4, nj) holds the position loops' integral, previous error, duty and the motor
+    current [A]; ``work`` is the flat workspace (:func:`workspace_views`). The arguments are
+    packed this way because each one costs the call about 0.05 us. Returns 0, the status of
+    step 3, or minus the status of step 1.
+    """
+    floating = plan[P_FLOATING] != 0
+    if i > 0 and plan[P_INTEGRATE]:
+        integrate(q, v, a, scal[S_DT], floating, q, v)
+        status = check_state(v, scal[S_MAX_SPEED])
+        if status:
+            return -status
+    if i % plan[P_RECORD_EVERY] == 0:
+        row = record[i // plan[P_RECORD_EVERY]]
+        nq, nv = q.shape[0], v.shape[0]
+        row[:nq] = q
+        row[nq:nq + nv] = v
+        row[nq + nv:] = servo[3]
+    if i == plan[P_STEPS]:
+        return STATUS_OK
+    X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
+    return pre_step(i % plan[P_SUBSTEPS] == 0, q, v, goals[i // plan[P_SUBSTEPS]], servo[0], servo[1], servo[2],
+                    torque_on, act, scal, ground, floating, chain_i, chain_R, chain_f, feat_i, feat_f, tau,
+                    servo[3], X, F, kin_R, kin_v)
 
 
 #: MuJoCo's default constraint impedance ``solimp`` (d0, d_width, width [m], midpoint, power) and

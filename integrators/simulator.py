@@ -326,10 +326,9 @@ class Simulator:
         self._chain_f = np.ascontiguousarray(np.column_stack([ch.jp, ch.axes]))
         self._feat_i = np.ascontiguousarray(np.column_stack([f.body, f.kind]), dtype=np.int64).reshape(-1, 2)
         self._feat_f = np.ascontiguousarray(np.column_stack([f.centre, f.axis, f.radius])).reshape(-1, 7)
-        self._X = np.empty((len(f), 3))
-        self._F = np.empty((len(f), 3))
-        self._kin_R = np.empty((len(ch.parents), 3, 3))  # kernel workspace (body poses, velocities)
-        self._kin_v = np.empty((len(ch.parents), 6, 3))
+        # the kernels' workspace: contact points and forces, body poses and velocities (views of one array)
+        self._work = np.empty(K.workspace_size(len(f), len(ch.parents)))
+        self._X, self._F, self._kin_R, self._kin_v = K.workspace_views(self._work, len(f), len(ch.parents))
         self._momentum = MomentumStep(self.model, s.dt) if s.scheme == "momentum" else None
         self._soft_warm = np.zeros((len(f), 4))  # the soft-constraint solver's last edge forces [N]
 
@@ -419,24 +418,33 @@ class Simulator:
                             self._kin_v)
         if status:
             self._raise(status, state.t, state.q, state.v)
-        status = self._advance(state.q, state.v, tau, q, v)
+        if self._momentum is None:
+            status = K.post_step(state.q, state.v, self._acceleration(self._pin, self._data, state.q, state.v, tau),
+                                 self.scal, self.model.chain.floating, q, v)
+        else:
+            status = self._momentum_step(state.q, state.v, tau, q, v)
         if status:
             self._raise(status, state.t, state.q, v)
         return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1)
 
-    def _advance(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray, v_out: np.ndarray) -> int:
-        """The rigid body's step under generalized force ``tau`` by ``settings.scheme`` (with the
-        soft-constraint contact forces if that is the contact law); a kernel status."""
-        if self.contact_law == "soft_constraint":
-            a = np.empty(self.model.nv)
-            K.soft_contact_acceleration(v, tau, pin.computeMinverse(self._pin, self._data, q),
-                                        pin.nonLinearEffects(self._pin, self._data, q, v), self.model.chain.floating,
-                                        self._chain_i[:, 0], self._chain_i[:, 2], self._feat_i[:, 0], self._X,
-                                        self._kin_R, self._kin_v, self.ground, self._soft_warm, a)
-            return K.post_step(q, v, a, self.scal, self.model.chain.floating, q_out, v_out)
-        if self._momentum is None:
-            a = pin.aba(self._pin, self._data, q, v, tau)
-            return K.post_step(q, v, a, self.scal, self.model.chain.floating, q_out, v_out)
+    def _acceleration(self, model: pin.Model, data: pin.Data, q: np.ndarray, v: np.ndarray,
+                      tau: np.ndarray) -> np.ndarray:
+        """The acceleration (nv,) under generalized force ``tau`` by the contact law: Pinocchio's
+        ABA for the compliant ground, with the soft-constraint contact forces for that law
+        (``model``, ``data``: this simulator's Pinocchio model and data, as :func:`pin.aba` takes
+        them)."""
+        if self.contact_law == "compliant":
+            return pin.aba(model, data, q, v, tau)
+        a = np.empty(self.model.nv)
+        K.soft_contact_acceleration(v, tau, pin.computeMinverse(model, data, q), pin.nonLinearEffects(model, data, q, v),
+                                    self.model.chain.floating, self._chain_i[:, 0], self._chain_i[:, 2],
+                                    self._feat_i[:, 0], self._X, self._kin_R, self._kin_v, self.ground,
+                                    self._soft_warm, a)
+        return a
+
+    def _momentum_step(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray,
+                       v_out: np.ndarray) -> int:
+        """The momentum-form step under ``tau`` into ``q_out``, ``v_out``; a kernel status."""
         try:
             self._momentum.step(q, v, tau, q_out, v_out)
         except FloatingPointError:
@@ -493,42 +501,44 @@ class Simulator:
         n_rec = n_steps // record_every + 1
         nj, nq, nv = self.model.n_joints, self.model.nq, self.model.nv
         T = state.t + np.arange(n_rec) * record_every * s.dt
-        Q, V, C = np.empty((n_rec, nq)), np.empty((n_rec, nv)), np.empty((n_rec, nj))
-        integ, prev_err = state.integ.copy(), state.prev_err.copy()
-        duty, current = state.duty.copy(), state.current.copy()
+        record = np.empty((n_rec, nq + nv + nj))
+        servo = np.array([state.integ, state.prev_err, state.duty, state.current], dtype=float)
         q, v = state.q.copy(), state.v.copy()
-        q_next, v_next, tau = np.empty(nq), np.empty(nv), np.empty(nv)
+        q_next, v_next, tau, a = np.empty(nq), np.empty(nv), np.empty(nv), np.zeros(nv)
         on = np.ones(nj, dtype=np.bool_) if torque_on is None else np.asarray(torque_on, dtype=np.bool_)
-        act, scal, ground, floating = self.act, self.scal, self.ground, self.model.chain.floating
-        ci, cR, cf = self._chain_i, self._chain_R, self._chain_f
-        fi, ff, X, F = self._feat_i, self._feat_f, self._X, self._F
-        kR, kv = self._kin_R, self._kin_v
+        momentum = self._momentum
+        plan = np.zeros(K.N_PLAN, dtype=np.int64)
+        plan[[K.P_STEPS, K.P_SUBSTEPS, K.P_RECORD_EVERY, K.P_INTEGRATE, K.P_FLOATING]] = (
+            n_steps, sub, record_every, momentum is None, self.model.chain.floating)
+        act, scal, ground, work = self.act, self.scal, self.ground, self._work
+        ci, cR, cf, fi, ff = self._chain_i, self._chain_R, self._chain_f, self._feat_i, self._feat_f
         pinm, data = self._pin, self._data
         report_every = max(1, n_steps // 100)
-        pre, post, aba = K.pre_step, K.post_step, pin.aba
-        advance = None if self._momentum is None and self.contact_law == "compliant" else self._advance
+        kernel = K.rollout_step
+        acceleration = pin.aba if self.contact_law == "compliant" else self._acceleration
         for i in range(n_steps + 1):
-            if i % record_every == 0:
-                r = i // record_every
-                Q[r], V[r], C[r] = q, v, current
+            status = kernel(i, plan, q, v, a, goals, servo, on, act, scal, ground, ci, cR, cf, fi, ff, tau, work,
+                            record)
+            if status:
+                # minus: step i - 1's integration failed; plus: step i's forces
+                self._raise(abs(status), state.t + (i - (status < 0)) * s.dt, q, v)
             if i == n_steps:
                 break
-            status = pre(i % sub == 0, q, v, goals[i // sub], integ, prev_err, duty, on, act, scal, ground,
-                         floating, ci, cR, cf, fi, ff, tau, current, X, F, kR, kv)
-            if status:
-                self._raise(status, state.t + i * s.dt, q, v)
-            if advance is None:
-                status = post(q, v, aba(pinm, data, q, v, tau), scal, floating, q_next, v_next)
+            if momentum is None:
+                a = acceleration(pinm, data, q, v, tau)
             else:
-                status = advance(q, v, tau, q_next, v_next)
-            if status:
-                self._raise(status, state.t + i * s.dt, q, v_next)
-            q, q_next = q_next, q
-            v, v_next = v_next, v
+                status = self._momentum_step(q, v, tau, q_next, v_next)
+                if status:
+                    self._raise(status, state.t + i * s.dt, q, v_next)
+                q, q_next = q_next, q
+                v, v_next = v_next, v
             if progress is not None and i % report_every == 0:
                 progress(i / n_steps)
         if progress is not None:
             progress(1.0)
+        Q = np.ascontiguousarray(record[:, :nq])
+        V = np.ascontiguousarray(record[:, nq:nq + nv])
+        C = np.ascontiguousarray(record[:, nq + nv:])
         # the goals and encoder readings of the recorded samples, taken after the loop (one array
         # operation each instead of one call per sample; the same values)
         G = goals[(np.arange(n_rec) * record_every) // sub]
