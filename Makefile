@@ -35,6 +35,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/mujoco_robustness.py
 	$(PY) benchmarks/mujoco_robustness.py --contact stiff
 	$(PY) benchmarks/diagnose_matrix.py
+	$(PY) benchmarks/effect_signal.py
 	$(PY) benchmarks/contact_time_constant.py
 	$(PY) benchmarks/contact_law.py
 	$(PY) benchmarks/mujoco_fit.py

@@ -84,6 +84,21 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
     return out
 
 
+def _signal(doc: dict) -> list[tuple[str, str, str]]:
+    """The two weakest near-limit effects of the matrix's runs, by how much they move the data."""
+    near = [r for r in doc["rows"] if r["level"] == "near_limit"]
+    strength: dict[tuple, list[dict]] = {}
+    for r in near:
+        strength.setdefault((r["effect"], r["magnitude"], r["unit"]), []).append(r)
+    def weakest(rows: list[dict]) -> float:
+        return min(max(r["joints_over_floor"], r["head_over_floor"]) for r in rows)
+    ranked = sorted(strength.items(), key=lambda kv: weakest(kv[1]))[:2]
+    parts = [f"{effect} {magnitude:g} {unit}".rstrip() + f": joints {min(r['joints_over_floor'] for r in rows):.1f}x, "
+             f"head {min(r['head_over_floor'] for r in rows):.1f}x" for (effect, magnitude, unit), rows in ranked]
+    return [("weakest near-limit effects in the confusion matrix's runs (both engines): change of the encoder "
+             "readings and of the final head over their noise floors", "; ".join(parts), "-")]
+
+
 def _accuracy(doc: dict) -> list[tuple[str, str, str]]:
     judged = [r for r in doc["rows"] if r["case"] != "reference"]
     pairs = [r for r in judged if "+" in r["case"]]
@@ -178,7 +193,7 @@ def _faults(doc: dict) -> list[tuple[str, str, str]]:
 #: Results file -> how its headline rows are read.
 SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix,
-    "diagnose_matrix_soft_constraint": _matrix, "diagnose_accuracy": _accuracy,
+    "diagnose_matrix_soft_constraint": _matrix, "effect_signal": _signal, "diagnose_accuracy": _accuracy,
     "mujoco_robustness": _robustness,
     "mujoco_robustness_stiff": _robustness, "mujoco_fit": _mujoco_fit, "contact_time_constant": _contact_time_constant,
     "contact_law": _contact_law,
