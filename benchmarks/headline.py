@@ -193,7 +193,8 @@ def _faults(doc: dict) -> list[tuple[str, str, str]]:
 #: Results file -> how its headline rows are read.
 SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix,
-    "diagnose_matrix_soft_constraint": _matrix, "effect_signal": _signal, "diagnose_accuracy": _accuracy,
+    "diagnose_matrix_soft_constraint": _matrix, "diagnose_matrix_choose": _matrix, "effect_signal": _signal,
+    "diagnose_accuracy": _accuracy,
     "mujoco_robustness": _robustness,
     "mujoco_robustness_stiff": _robustness, "mujoco_fit": _mujoco_fit, "contact_time_constant": _contact_time_constant,
     "contact_law": _contact_law,

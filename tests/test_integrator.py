@@ -202,3 +202,30 @@ def test_double_pendulum_with_damping_loses_what_the_damper_dissipates(erd_dir, 
     work = np.concatenate([[0.0], np.cumsum(b * np.sum(tr.v[:-1] ** 2, axis=1) * dt)])
     assert work[-1] > 0.5 * E[0]                                       # the damper took most of it
     assert np.abs((E[0] - E) - work).max() <= 0.01 * E[0]
+
+
+@pytest.mark.parametrize("law, scheme", [("compliant", "velocity"), ("soft_constraint", "velocity"),
+                                         ("compliant", "momentum")])
+def test_rollout_is_the_single_step_repeated(cobra, law, scheme):
+    """``Simulator.rollout`` (one compiled call per step: the update in place, the sample, the
+    next forces) gives exactly what ``Simulator.step`` gives step by step (separate force and
+    update calls, out of place): the same states, and each sample's motor current is the one of
+    the step before it. The servo ticks every 4th step, with a joint's motor off."""
+    settings = SimSettings(dt=1e-3, control_dt=4e-3, scheme=scheme)
+    params = ModelParameters.nominal().with_contact_law(law)
+    sim = Simulator(cobra, params, settings)
+    gait = SidewindingGait(0.65)
+    start = sim.rest_state(gait.q_ref(0.0))
+    on = np.ones(11, dtype=bool)
+    on[4] = False
+    n = 60
+    table = gait.q_ref(np.arange(n // 4 + 1) * settings.control_dt)
+    tr = sim.rollout(start, table, n * settings.dt, record_every=1, torque_on=on)
+    stepper = Simulator(cobra, params, settings)  # its own solver warm start (soft law)
+    st = start
+    for i in range(n):
+        assert np.array_equal(tr.q[i], st.q) and np.array_equal(tr.v[i], st.v), f"step {i}"
+        assert np.array_equal(tr.current[i], st.current), f"step {i}"
+        st = stepper.step(st, table[i // 4], torque_on=on)
+    assert np.array_equal(tr.q[n], st.q) and np.array_equal(tr.v[n], st.v)
+    assert np.array_equal(tr.current[n], st.current)
