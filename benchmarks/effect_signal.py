@@ -65,7 +65,12 @@ def main(argv: list[str] | None = None) -> None:
     unknown = sorted(set(engines) - set(ENGINES))
     if unknown:
         parser.error(f"--engines: unknown {unknown}; known: {', '.join(ENGINES)}")
-    seeds = [int(s) for s in args.seeds.split(",") if s]
+    try:
+        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    except ValueError:
+        parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
+    if not seeds:
+        parser.error("--seeds: give at least one seed")
     model, library = CobraModel.load(), EffectLibrary()
     rows = []
     for engine in engines:
