@@ -32,9 +32,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--budget-seconds", type=float, default=None, help="wall-time budget [s] (least squares with "
                    "contact_rounding free: shared by its fits from each shape of the module ends)")
     p.add_argument("--max-iterations", type=int, default=20, help="least squares: Jacobian evaluations at most")
-    p.add_argument("--timesteps", type=int, default=2000, help="PPO: environment steps at most")
+    p.add_argument("--timesteps", type=int, default=2048, help="PPO: environment steps (parameter vectors "
+                   "tried) at most")
     p.add_argument("--seed", type=int, default=0, help="random seed (PPO)")
-    p.add_argument("--envs", type=int, default=2, help="PPO: environment processes (default 2)")
+    p.add_argument("--envs", type=int, default=32, help="PPO: environments stepped together, their parameter "
+                   "vectors simulated in one batch (default 32)")
     p.add_argument("--executor", choices=("local", "ray"), default="local", help="where evaluations run")
     p.add_argument("--ray-address", default=None, help="join this Ray cluster (with --executor ray)")
     p.add_argument("--workers", type=int, default=1, help="local processes for evaluations (default 1: "

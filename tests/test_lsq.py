@@ -45,6 +45,13 @@ def test_lsq_recovers_parameters_within_two_percent(noisy_runs):
     # the continuation: 1.5 s, then 3 s, then the whole 4 s runs
     horizons = [entry.horizon_s for entry in result.log]
     assert horizons == sorted(horizons) and horizons[0] == pytest.approx(1.5, abs=0.03) and horizons[-1] > 3.9
+    # the path a benchmark plots: the start, then one point per accepted step, ending at the fit
+    iterates = result.extra["iterates"]
+    assert len(iterates) == 1 + sum(entry.accepted for entry in result.log)
+    np.testing.assert_allclose(iterates[0][2].as_vector(), guess.as_vector(), rtol=1e-12)
+    np.testing.assert_array_equal(iterates[-1][2].as_vector(), result.params.as_vector())
+    seconds = [sec for sec, _, _ in iterates]
+    assert seconds[0] == 0.0 and seconds == sorted(seconds) and seconds[-1] <= result.seconds
 
 
 def test_horizons_must_increase(noisy_runs):

@@ -1,12 +1,10 @@
-"""The parameter-tuning environment and the PPO fit (paper: state = parameters, action =
+"""The parameter-tuning environments and the PPO fit (paper: state = parameters, action =
 modifications, reward = -(external + internal) errors)."""
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Iterator
 
-import numba
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
@@ -17,7 +15,8 @@ from integrators.simulate import simulate_gait, simulate_like
 from sysid.identification.env import ParameterTuningEnv
 from sysid.identification.lsq import FitStatus
 from sysid.identification.objective import Objective, ObjectiveTerms
-from sysid.identification.ppo import fit_ppo, single_threaded
+from sysid.identification.ppo import PPOSettings, fit_ppo
+from sysid.identification.vec_env import WORST_RATIO, BatchedTuningVecEnv
 
 FREE = ["mu_c", "joint_damping"]
 
@@ -47,21 +46,11 @@ class BowlObjective:
         return out
 
 
-@pytest.fixture(autouse=True)
-def one_numba_thread() -> Iterator[None]:
-    """Evaluations in this process on one thread, as fit_ppo's environments run: threaded
-    kernels stall at every step's barrier when other jobs hold the cores (see single_threaded)."""
-    threads = numba.get_num_threads()
-    numba.set_num_threads(1)
-    yield
-    numba.set_num_threads(threads)
-
-
 @pytest.fixture(scope="module")
 def tiny_objective() -> Objective:
     """One 0.5 s run simulated from the truth; the guess is 40 % off in both free parameters."""
     run = simulate_gait(SidewindingGait(0.5), 0.5, params=_truth(), sample_rate_hz=50)
-    return single_threaded(Objective([run], _truth().with_values(mu_c=0.42, joint_damping=0.14)))
+    return Objective([run], _truth().with_values(mu_c=0.42, joint_damping=0.14))
 
 
 def test_check_env_passes(tiny_objective: Objective) -> None:
@@ -131,6 +120,49 @@ def test_jittered_reset_is_seeded() -> None:
     assert np.all(np.abs(a - params.to_unit()) <= 0.05 + 1e-6)
 
 
+def test_batched_env_proposes_around_the_best_and_rewards_the_ratio() -> None:
+    """One vectorised step: proposals z_best + a * radius, reward -ln(total / best total)
+    clipped to +-ln(WORST_RATIO), the best proposal becomes the next start."""
+    params = _truth()
+    z0 = params.to_unit()
+    target = z0 + np.array([0.04, -0.02])
+    env = BatchedTuningVecEnv(BowlObjective(params, target), 3, max_step=0.1, patience=2)
+    best0 = env.best_terms.total
+    assert best0 == pytest.approx(0.06)
+    np.testing.assert_allclose(env.reset(), np.repeat(z0[None], 3, axis=0), atol=1e-6)
+    actions = np.array([[0.4, -0.2], [0.4, 0.0], [-1.0, 1.0]], dtype=np.float32)
+    obs, rewards, dones, infos = env.step(actions)
+    np.testing.assert_allclose(rewards, [np.log(WORST_RATIO), np.log(3.0), -np.log(0.26 / 0.06)], rtol=1e-5)
+    assert dones.all() and all(info["episode"]["l"] == 1 for info in infos)
+    np.testing.assert_allclose(env.best_z, target, atol=1e-7)
+    np.testing.assert_allclose(obs, np.repeat(target[None], 3, axis=0), atol=1e-6)
+    assert env.evaluations == 4                                  # the initial parameters and 3 proposals
+
+
+def test_batched_env_halves_its_radius_without_progress_and_floors_failures() -> None:
+    """Patience 2: two vectorised steps without a better proposal halve the radius. An
+    infeasible proposal (mu_c above the frozen mu_s) and a diverging one get the floor reward
+    and do not stop the others of the batch from being evaluated."""
+    params = _truth().with_values(mu_c=0.44)                      # mu_s = 0.45 is frozen
+    mu_c = params.free_names.index("mu_c")
+    other = 1 - mu_c
+    z0 = params.to_unit()
+    target = z0.copy()
+    target[other] += 0.01                                         # the start's total: 0.01
+    env = BatchedTuningVecEnv(BowlObjective(params, target, diverge_above=z0[other] + 0.05), 3, max_step=0.1)
+    actions = np.zeros((3, 2), dtype=np.float32)
+    actions[0, mu_c] = 1.0                                        # mu_c would exceed mu_s
+    actions[1, other] = 1.0                                       # the stand-in simulation diverges
+    actions[2, other] = -0.5                                      # evaluated: total 0.06
+    _, rewards, _, _ = env.step(actions)
+    np.testing.assert_allclose(rewards, [-np.log(WORST_RATIO), -np.log(WORST_RATIO), -np.log(6.0)], rtol=1e-5)
+    assert env.radius == 0.1
+    env.step(actions)
+    assert env.radius == pytest.approx(0.05)                      # halved after two steps without progress
+    np.testing.assert_allclose(env.best_z, z0)
+    assert env.evaluations == 1 + 2 * 2                           # the infeasible rows are not simulated
+
+
 def test_fit_ppo_smoke(tiny_objective: Objective, tmp_path) -> None:
     seen: list[tuple[int, float, float]] = []
     png = tmp_path / "reward.png"
@@ -148,6 +180,18 @@ def test_fit_ppo_smoke(tiny_objective: Objective, tmp_path) -> None:
     for row in result.report:
         assert math.isnan(row.ci_low) and math.isnan(row.ci_high)
         assert row.identifiable and row.reason == "no interval (PPO)"
+
+
+def test_fit_ppo_searches_on_a_subset_and_reports_the_cost_on_every_run(tiny_objective: Objective) -> None:
+    """With ``episode_runs`` = 1 of two runs (two gaits) the proposals simulate one run; the
+    result's cost and initial cost are the objective's on both."""
+    other = simulate_gait(SidewindingGait(0.35), 0.5, params=_truth(), sample_rate_hz=50)
+    objective = Objective([*tiny_objective.runs, other], tiny_objective.params)
+    result = fit_ppo(objective, total_timesteps=64, n_envs=8, seed=0, settings=PPOSettings(episode_runs=1))
+    assert result.extra["episode_runs"] == 1
+    assert result.cost == pytest.approx(objective(result.params.as_vector()), rel=1e-9)
+    assert result.initial_cost == pytest.approx(objective(objective.params.as_vector()), rel=1e-9)
+    assert result.cost < result.initial_cost
 
 
 def test_fit_ppo_same_seed_same_result(tiny_objective: Objective) -> None:
@@ -171,7 +215,7 @@ def test_ppo_recovers_friction_and_damping() -> None:
             for h in (0.0, 1.0)]
     held_out = simulate_gait(SidewindingGait(0.65), 3.0, params=truth, sample_rate_hz=50, heading_rad=2.5)
     guess = truth.with_values(mu_c=0.42, joint_damping=0.14)
-    result = fit_ppo(Objective(runs, guess), total_timesteps=192, n_envs=2, seed=0)
+    result = fit_ppo(Objective(runs, guess), total_timesteps=512, seed=0)
 
     def final_head_error(params: ModelParameters) -> float:
         """Through the single-environment simulator, independently of the objective's batch."""

@@ -55,6 +55,7 @@ from integrators.simulator import Simulator
 from sysid.discrepancy.effects import Effect, EffectLibrary
 from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
 from sysid.identification.objective import Objective, Weights
+from sysid.identification.splits import spread_over_gaits
 from sysid.gap.report import GapSummary, HeldOut, head_text, pair_held_out
 from sysid.discrepancy.signature import Signature, localise
 
@@ -573,21 +574,6 @@ def balanced_weights(objective: Objective, x: np.ndarray) -> Weights:
     return replace(w, head_scale_m=float(max(w.head_scale_m, min(w.head_scale_m * np.sqrt(cost_h / cost_j), rms))))
 
 
-def _spread(runs: Sequence[Run], n: int) -> list[Run]:
-    """Up to ``n`` runs taken round-robin over the gait frequencies."""
-    if n <= 0 or n >= len(runs):
-        return list(runs)
-    by_f: dict[float, list[Run]] = {}
-    for r in runs:
-        by_f.setdefault(r.gait_frequency_hz, []).append(r)
-    out: list[Run] = []
-    while len(out) < n:
-        for lst in by_f.values():
-            if lst and len(out) < n:
-                out.append(lst.pop(0))
-    return out
-
-
 def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParameters | None = None,
              library: EffectLibrary | None = None, config: DiagnoseConfig = DiagnoseConfig(),
              law_starts: Mapping[str, ModelParameters] | None = None,
@@ -617,7 +603,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     t0 = time.perf_counter()
     library = library or EffectLibrary()
     start = params or ModelParameters.nominal()
-    fit_set = _spread(train, config.fit_runs)
+    fit_set = spread_over_gaits(train, config.fit_runs)
     result = Diagnosis()
     progress(f"fitting the current model ({', '.join(start.free_names)}) on {len(fit_set)} runs")
     base = fit_lsq(Objective(fit_set, start), max_iterations=config.fit_iterations)
@@ -635,7 +621,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     train_pairs = [(r, simulate_like(r, params=current)) for r in fit_set]
     result.signature = localise(train_pairs + list(zip(holdout, sims_before)))
     remaining = list(library.names)
-    profile_set = _spread(fit_set, config.profile_runs)
+    profile_set = spread_over_gaits(fit_set, config.profile_runs)
     for round_ in range(config.max_effects):
         # the baseline every candidate is measured against: the current model refitted alone as
         # a candidate is (a fit that had not yet converged must not make every effect look useful)

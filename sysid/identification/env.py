@@ -2,7 +2,10 @@
 
 The state is the parameter vector being tuned, the action a bounded modification of it and the
 reward the negative identification objective (external + internal errors, paper Eqs. 7 and 8)
-of :class:`sysid.identification.objective.Objective`. :func:`sysid.identification.ppo.fit_ppo` trains PPO on it.
+of :class:`sysid.identification.objective.Objective`: one environment, one parameter vector
+simulated per step, for any Gymnasium learner. :func:`sysid.identification.ppo.fit_ppo` trains
+PPO on its batched form, :class:`sysid.identification.vec_env.BatchedTuningVecEnv`, whose
+environments take their steps as one batched simulation.
 """
 from __future__ import annotations
 

@@ -300,7 +300,9 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
 
     Returns:
         FitResult with the fitted parameters, an iteration log (with each entry's horizon), a
-        status and per-parameter intervals and identifiability flags.
+        status and per-parameter intervals and identifiability flags; ``extra["iterates"]``
+        lists (seconds since the start, evaluations, parameters) of the start and of every
+        accepted step, over all stages (what a benchmark plots against wall time).
     """
     if list(horizons_s) != sorted(horizons_s) or any(h <= 0 for h in horizons_s):
         raise InputError(f"horizons_s must be positive and increasing, got {list(horizons_s)}")
@@ -312,6 +314,7 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     z = params0.to_unit()
     r0 = objective.residuals(params0.as_vector()[None])[0]
     log: list[IterationLog] = []
+    path: list[tuple[float, int, np.ndarray]] = [(0.0, objective.evaluations, z.copy())]
     done = objective.evaluations
     settings = dict(fd_step=fd_step, trust_radius=trust_radius, cost_tol=cost_tol, step_tol=step_tol, progress=progress,
                     t_start=t_start, budget_seconds=budget_seconds)
@@ -324,12 +327,14 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
                                   **{**settings, "cost_tol": stage_cost_tol})
         z, done = lm.z, done + stage.evaluations
         log.extend(lm.log)
+        path.extend(lm.path)
     objective.evaluations = done
     # the whole runs always get at least one Jacobian: the intervals are computed from it
     lm = _levenberg_marquardt(objective, z, max_iterations=max(max_iterations, 1),
                               first_iteration=len({e.iteration for e in log}), evaluations_before=0, **settings)
     z = lm.z
     log.extend(lm.log)
+    path.extend(lm.path)
     fitted = params0.from_unit(z)
     blocks = objective.residual_blocks()
     start_pose = objective.start_pose_sensitivity(lm.r)
@@ -347,7 +352,8 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     return FitResult(fitted, lm.status, lm.cost, 0.5 * float(r0 @ r0), log, found.report, found.singular_values,
                      objective.evaluations, time.perf_counter() - t_start, residual_count=lm.r.size,
                      residual_whiteness=white, interval_method=found.method,
-                     report_without_current=without_current)
+                     report_without_current=without_current,
+                     extra={"iterates": [(sec, n, params0.from_unit(zz)) for sec, n, zz in path]})
 
 
 @dataclass
@@ -360,6 +366,7 @@ class _LMState:
     cost: float
     status: FitStatus
     log: list[IterationLog]
+    path: list[tuple[float, int, np.ndarray]]
 
 
 def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations: int, budget_seconds: float | None,
@@ -390,6 +397,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
                                              "a": ca.Sparsity.dense(1 if friction else 0, d)},
                       {"printLevel": "none", "error_on_fail": False})
     J = np.zeros((r.size, d))
+    path: list[tuple[float, int, np.ndarray]] = []
     for k in range(max_iterations):
         it = first_iteration + k
         h = forward_steps(params0, z, fd_step)
@@ -434,6 +442,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
                 elif agreement > 0.75 and np.max(np.abs(dz)) >= 0.99 * radius:
                     radius = min(2.0 * radius, 1.0)
                 z, r, cost = z_try, r_try, c_try
+                path.append((time.perf_counter() - t_start, evaluations_before + objective.evaluations, z.copy()))
                 damping = max(damping / 3.0, 1e-9)
                 accepted = True
                 break
@@ -453,7 +462,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
         if log[-1].step_norm < step_tol:
             status = FitStatus.CONVERGED_STEP
             break
-    return _LMState(z, r, J, cost, status, log)
+    return _LMState(z, r, J, cost, status, log, path)
 
 
 @dataclass(frozen=True)

@@ -388,10 +388,13 @@ class Objective:
         """The same objective from ``params`` (its own evaluation count)."""
         return Objective(self.runs, params, self.weights, self.settings, self.executor, self.threads, self.model)
 
+    def on_runs(self, runs: Sequence[Run]) -> "Objective":
+        """The same objective over ``runs`` instead (its own evaluation count)."""
+        return Objective(runs, self.params, self.weights, self.settings, self.executor, self.threads, self.model)
+
     def truncated(self, seconds: float) -> "Objective":
         """The same objective over each run's first ``seconds`` [s] (its own evaluation count)."""
-        runs = [r.slice_time(float(r.t[0]), float(r.t[0]) + seconds) for r in self.runs]
-        return Objective(runs, self.params, self.weights, self.settings, self.executor, self.threads, self.model)
+        return self.on_runs([r.slice_time(float(r.t[0]), float(r.t[0]) + seconds) for r in self.runs])
 
     @property
     def names(self) -> tuple[str, ...]:

@@ -1,52 +1,49 @@
-"""Identification by PPO (stable-baselines3) on :class:`sysid.identification.env.ParameterTuningEnv`.
+"""Identification by PPO (stable-baselines3) on :class:`sysid.identification.vec_env.BatchedTuningVecEnv`.
 
 The paper tunes the parameters with Proximal Policy Optimization: the state is the parameter
 vector, an action modifies it and the reward is the negative identification objective. Here
-``n_envs`` copies of the environment run in as many processes (``SubprocVecEnv``; in-process
-``DummyVecEnv`` for one), each with its own in-process copy of the objective; the policy and
-value networks are small MLPs and a rollout is short (``n_steps`` per environment), so several
-policy updates fit in a budget of a few hundred objective evaluations.
+``n_envs`` environments take their steps together, so that one vectorised step is one batched
+simulation of ``n_envs`` parameter vectors (:class:`integrators.batch.BatchSimulator`, both
+cores); each episode is one modification of the best parameters so far, rewarded by how much
+it lowers the objective (the episode design is the vector environment's docstring's). The
+policy and value networks are small MLPs and a rollout is short (``n_steps`` per
+environment), so that the policy is updated after every few batches.
+
+Each evaluation simulates ``episode_runs`` of the training runs, spread over the gait
+frequencies (:func:`sysid.identification.splits.spread_over_gaits`): a batch of proposals
+costs what one evaluation on every run would, and the search needs many. The best parameters
+are evaluated on every training run at the end, for the result's cost.
 
 PPO is used as the paper uses it, as a search: what is returned is the best parameter vector
-any environment evaluated while training (the environments keep track of it; it is collected
-after every rollout), not the policy's final suggestion. PPO gives no covariance, so the
+evaluated while training, not the policy's final suggestion. PPO gives no covariance, so the
 report carries no confidence intervals.
 
-Every evaluation runs on one thread (:func:`single_threaded`), and so does torch during the fit
-(both restored afterwards): ``n_envs`` processes use ``n_envs`` cores.
-
-Determinism: the same seed and ``n_envs`` give the same result when training stops on
-``total_timesteps``. Torch's reductions do not depend on a thread count, the environments are
-seeded ``seed, seed + 1, ...`` and a vectorised step waits for every environment, so process
-scheduling changes nothing. A fit stopped by ``budget_seconds`` ends at a time-dependent step
-and is not reproducible.
+Determinism: the same seed, ``n_envs`` and settings give the same result when training stops on
+``total_timesteps`` (the batched simulation is deterministic and torch runs on one thread
+during the fit). A fit stopped by ``budget_seconds`` ends at a time-dependent step and is not
+reproducible.
 """
 from __future__ import annotations
 
-import dataclasses
 import time
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Callable, Iterator
 
-import gymnasium as gym
-import numba
 import numpy as np
 import torch
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
-from stable_baselines3.common.monitor import Monitor
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
-from sysid.identification.env import ParameterTuningEnv
-from sysid.identification.executor import LocalExecutor
 from sysid.identification.lsq import FitResult, FitStatus, ParameterReport
 from sysid.identification.objective import Objective, ObjectiveTerms
+from sysid.identification.splits import spread_over_gaits
+from sysid.identification.vec_env import BatchedTuningVecEnv
 
 #: A unit coordinate closer than this to 0 or 1 counts as at a bound (as in :mod:`sysid.identification.lsq`).
 AT_BOUND_UNIT = 1e-3
@@ -56,82 +53,34 @@ AT_BOUND_UNIT = 1e-3
 class PPOSettings:
     """Environment and PPO settings of :func:`fit_ppo` (documented defaults).
 
-    Each episode starts from the best parameters found so far (``start_from_best``) and lasts
-    two steps, so that most evaluations are spent near the best parameters instead of wandering
-    from the paper's fixed start; the policy starts narrow (``log_std_init`` -1) and observes the
-    unit coordinates only. How each default was chosen, with the measurements, is in
-    ``CHANGELOG.md`` ("PPO settings: how the defaults were chosen").
+    How the defaults were chosen, with the measurements, is in ``CHANGELOG.md`` ("PPO on the
+    batched simulator").
 
     Attributes:
-        episode_length: environment steps (objective evaluations) per episode.
-        max_step: largest change of a unit coordinate per step.
-        start_jitter: half-width of the uniform start offset in unit coordinates.
-        observe_terms: the observation carries the normalised objective terms besides ``z``.
-        start_from_best: episodes start from the environment's best parameters so far.
-        n_steps: steps per environment between policy updates (a multiple of
-            ``episode_length`` keeps rollouts aligned with episodes).
-        n_minibatches: minibatches per PPO epoch (the batch is ``n_steps * n_envs``).
+        episode_runs: training runs each evaluation simulates, spread over the gaits (0: all).
+        max_step: the proposals' first radius [unit coordinates] (:class:`BatchedTuningVecEnv`).
+        min_step: their smallest radius.
+        patience: vectorised steps without improvement before the radius halves.
+        n_steps: vectorised steps between policy updates (the batch is ``n_steps * n_envs``).
+        n_minibatches: minibatches per PPO epoch.
         n_epochs: passes over a rollout per update.
         learning_rate: Adam step size.
-        gamma: discount factor.
-        gae_lambda: GAE parameter.
         clip_range: PPO's epsilon.
         log_std_init: initial log standard deviation of the Gaussian policy (in action units).
         hidden: hidden layer widths of the policy and of the value network.
     """
 
-    episode_length: int = 2
+    episode_runs: int = 6
     max_step: float = 0.1
-    start_jitter: float = 0.0
-    observe_terms: bool = False
-    start_from_best: bool = True
-    n_steps: int = 16
+    min_step: float = 1e-4
+    patience: int = 2
+    n_steps: int = 2
     n_minibatches: int = 2
     n_epochs: int = 10
-    learning_rate: float = 1e-3
-    gamma: float = 0.9
-    gae_lambda: float = 0.95
+    learning_rate: float = 3e-3
     clip_range: float = 0.2
     log_std_init: float = -1.0
     hidden: tuple[int, ...] = (32, 32)
-
-    def env_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments of :class:`sysid.identification.env.ParameterTuningEnv`."""
-        return {"episode_length": self.episode_length, "max_step": self.max_step,
-                "start_jitter": self.start_jitter, "observe_terms": self.observe_terms,
-                "start_from_best": self.start_from_best}
-
-
-@dataclass(frozen=True)
-class EnvFactory:
-    """Builds one monitored environment; picklable, so ``SubprocVecEnv`` sends it to a worker.
-
-    The calling thread's numba kernels are set to one thread (see :func:`single_threaded`).
-
-    Attributes:
-        objective: the objective (a :func:`single_threaded` copy; each worker unpickles its own).
-        env_kwargs: keyword arguments of :class:`sysid.identification.env.ParameterTuningEnv`.
-    """
-
-    objective: Objective
-    env_kwargs: dict[str, Any]
-
-    def __call__(self) -> gym.Env:
-        numba.set_num_threads(1)
-        return Monitor(ParameterTuningEnv(self.objective, **self.env_kwargs))
-
-
-def single_threaded(objective: Objective) -> Objective:
-    """An in-process copy of ``objective`` whose batched simulation runs on one thread.
-
-    The environments are the parallelism of :func:`fit_ppo`. Threads inside an evaluation
-    (Pinocchio's ABA pool, which :class:`sysid.identification.objective.Objective` sizes to 2 for an in-process
-    executor, and numba's ``prange`` kernels, sized by :func:`numba.set_num_threads`) meet at a
-    barrier every physics step, so they stall whenever another process holds a core: measured
-    with one core busy, a 0.5 s run took 0.12-0.35 s per evaluation with two threads and
-    0.016 s with one (0.016 s either way on an idle machine).
-    """
-    return dataclasses.replace(objective, executor=LocalExecutor(1), threads=1, evaluations=0)
 
 
 @dataclass(frozen=True)
@@ -159,10 +108,10 @@ class _TrainingMonitor(BaseCallback):
         self._returns: list[float] = []
 
     def collect_best(self) -> _Best:
-        """Ask every environment for its best; keep the lowest total (first environment on ties)."""
-        bests = self.training_env.env_method("best")
-        z, terms, _ = min(bests, key=lambda b: b[1].total)
-        self.best = _Best(z, terms, sum(b[2] for b in bests))
+        """The vector environment's best so far."""
+        env = self.training_env
+        z, terms, evaluations = (env.get_attr(name)[0] for name in ("best_z", "best_terms", "evaluations"))
+        self.best = _Best(z.copy(), terms, evaluations)
         return self.best
 
     def _on_step(self) -> bool:
@@ -197,18 +146,19 @@ class _TrainingMonitor(BaseCallback):
         return best
 
 
-def fit_ppo(objective: Objective, *, budget_seconds: float | None = None, total_timesteps: int = 1024,
-            seed: int = 0, n_envs: int = 2, progress: Callable[[int, float, float], None] | None = None,
+def fit_ppo(objective: Objective, *, budget_seconds: float | None = None, total_timesteps: int = 2048,
+            seed: int = 0, n_envs: int = 32, progress: Callable[[int, float, float], None] | None = None,
             curve_png: str | Path | None = None, settings: PPOSettings = PPOSettings()) -> FitResult:
     """Tune the objective's free parameters with PPO from its parameter set's current values.
 
     Args:
         objective: the identification objective over the training runs.
-        budget_seconds: stop after this wall time [s] (checked every environment step; the
+        budget_seconds: stop after this wall time [s] (checked every vectorised step; the
             result then depends on timing).
-        total_timesteps: environment steps (objective evaluations) over all environments.
-        seed: seeds torch, numpy, the policy and environment ``i`` with ``seed + i``.
-        n_envs: environments, each in its own process when more than one.
+        total_timesteps: environment steps (proposals, each one parameter vector simulated on
+            ``settings.episode_runs`` runs) over all environments.
+        seed: seeds torch, numpy and the policy.
+        n_envs: environments stepped together (parameter vectors per batched simulation).
         progress: called after every rollout (and once more if training stops mid-rollout) with
             (timesteps, best total so far, mean return of the episodes that ended since the
             previous call, NaN if none did).
@@ -217,18 +167,14 @@ def fit_ppo(objective: Objective, *, budget_seconds: float | None = None, total_
 
     Returns:
         FitResult with ``method="ppo"``: the best parameters evaluated, ``cost`` their total
-        and ``initial_cost`` the initial one, status ``BUDGET`` or ``MAX_ITERATIONS``
-        (timesteps exhausted), no iteration log, no singular values, a report without
-        intervals, ``evaluations`` the objective evaluations of all environments (each
-        evaluates the initial parameters once; invalid parameter vectors are not evaluated),
-        ``seconds`` the wall time including process start-up, and in ``extra``: ``reward_curve``
-        (list of (timesteps, mean episode reward, best total)), ``best_history`` (list of
-        (seconds since the start, timesteps, best ModelParameters) each time the best changed,
-        checked after every rollout), ``timesteps``, ``initial_terms``, ``best_terms``, ``n_envs``, ``seed``.
-
-    With ``n_envs > 1`` the environments run in ``forkserver`` (or ``spawn``) processes, which
-    import the calling script: a script calling this must guard its entry point with
-    ``if __name__ == "__main__":``.
+        and ``initial_cost`` the initial one (both on every run of ``objective``), status
+        ``BUDGET`` or ``MAX_ITERATIONS`` (timesteps exhausted), no iteration log, no singular
+        values, a report without intervals, ``evaluations`` the parameter vectors simulated
+        (invalid ones are not), ``seconds`` the wall time, and in ``extra``: ``reward_curve``
+        (list of (timesteps, mean episode reward, best total on the episodes' runs)),
+        ``best_history`` (list of (seconds since the start, timesteps, best ModelParameters)
+        each time the best changed, checked after every rollout), ``timesteps``,
+        ``initial_terms``, ``best_terms`` (on every run), ``n_envs``, ``seed``, ``episode_runs``.
 
     Raises:
         InputError: for ``n_envs`` < 1, ``total_timesteps`` < 1 or ``settings.n_steps * n_envs``
@@ -242,47 +188,49 @@ def fit_ppo(objective: Objective, *, budget_seconds: float | None = None, total_
     if batch < 2:
         raise InputError(f"n_steps * n_envs = {batch}: PPO needs at least 2 samples per update")
     t_start = time.perf_counter()
-    factories = [EnvFactory(single_threaded(objective), settings.env_kwargs()) for _ in range(n_envs)]
+    runs = spread_over_gaits(objective.runs, settings.episode_runs)
+    episodes = objective if len(runs) == len(objective.runs) else objective.on_runs(runs)
+    vec_env = BatchedTuningVecEnv(episodes, n_envs, max_step=settings.max_step, min_step=settings.min_step,
+                                  patience=settings.patience)
     with _one_thread():
-        vec_env: VecEnv = SubprocVecEnv(factories) if n_envs > 1 else DummyVecEnv(factories)
-        try:
-            model = PPO("MlpPolicy", vec_env, n_steps=settings.n_steps,
-                        batch_size=max(1, batch // settings.n_minibatches), n_epochs=settings.n_epochs,
-                        learning_rate=settings.learning_rate, gamma=settings.gamma,
-                        gae_lambda=settings.gae_lambda, clip_range=settings.clip_range,
-                        policy_kwargs={"net_arch": {"pi": list(settings.hidden), "vf": list(settings.hidden)},
-                                       "log_std_init": settings.log_std_init},
-                        seed=seed, device="cpu", verbose=0)
-            monitor = _TrainingMonitor(t_start, budget_seconds, progress)
-            model.learn(total_timesteps, callback=monitor)
-            best = monitor.finish()
-            initial_terms: ObjectiveTerms = vec_env.get_attr("reference_terms")[0]
-            timesteps = model.num_timesteps
-        finally:
-            vec_env.close()
+        model = PPO("MlpPolicy", vec_env, n_steps=settings.n_steps,
+                    batch_size=max(2, batch // settings.n_minibatches), n_epochs=settings.n_epochs,
+                    learning_rate=settings.learning_rate, clip_range=settings.clip_range,
+                    policy_kwargs={"net_arch": {"pi": list(settings.hidden), "vf": list(settings.hidden)},
+                                   "log_std_init": settings.log_std_init},
+                    seed=seed, device="cpu", verbose=0)
+        monitor = _TrainingMonitor(t_start, budget_seconds, progress)
+        model.learn(total_timesteps, callback=monitor)
+    best = monitor.finish()
     fitted = objective.params.from_unit(best.z)
+    evaluations = best.evaluations
+    if episodes is objective:
+        initial_terms, best_terms = vec_env.reference_terms, best.terms
+    else:  # the result's cost is on every training run
+        initial_terms, best_terms = objective.terms(np.array([objective.params.as_vector(), fitted.as_vector()]))
+        evaluations += 2
     if curve_png is not None:
-        plot_reward_curve(monitor.curve, curve_png, initial_total=initial_terms.total)
+        plot_reward_curve(monitor.curve, curve_png, initial_total=vec_env.reference_terms.total)
     return FitResult(
         fitted, FitStatus.BUDGET if monitor.over_budget else FitStatus.MAX_ITERATIONS,
-        best.terms.total, initial_terms.total, [], _report(objective.params, fitted, best.z),
-        np.empty(0), best.evaluations, time.perf_counter() - t_start, method="ppo",
-        extra={"reward_curve": monitor.curve, "timesteps": timesteps, "initial_terms": initial_terms,
+        best_terms.total, initial_terms.total, [], _report(objective.params, fitted, best.z),
+        np.empty(0), evaluations, time.perf_counter() - t_start, method="ppo",
+        extra={"reward_curve": monitor.curve, "timesteps": model.num_timesteps, "initial_terms": initial_terms,
                "best_history": [(sec, steps, objective.params.from_unit(z)) for sec, steps, z in monitor.history],
-               "best_terms": best.terms, "n_envs": n_envs, "seed": seed},
+               "best_terms": best_terms, "n_envs": n_envs, "seed": seed, "episode_runs": len(runs)},
     )
 
 
 @contextmanager
 def _one_thread() -> Iterator[None]:
-    """Torch and this thread's numba kernels on one thread; the previous counts are restored."""
-    torch_threads, numba_threads = torch.get_num_threads(), numba.get_num_threads()
+    """Torch on one thread (its networks are tiny; the cores are the batched simulation's); the
+    previous count is restored."""
+    threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
         yield
     finally:
-        torch.set_num_threads(torch_threads)
-        numba.set_num_threads(numba_threads)
+        torch.set_num_threads(threads)
 
 
 def _report(initial: ModelParameters, fitted: ModelParameters, z: np.ndarray) -> list[ParameterReport]:

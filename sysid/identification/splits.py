@@ -34,3 +34,19 @@ def expand(paths: Sequence[str]) -> tuple[list[Path], list[Path]]:
 def read_runs(paths: Sequence[Path]) -> list[Run]:
     """Read and validate every run (errors name the file)."""
     return [read_run(p) for p in paths]
+
+
+def spread_over_gaits(runs: Sequence[Run], n: int) -> list[Run]:
+    """Up to ``n`` of ``runs`` taken round-robin over their gait frequencies, in order (all of
+    them if ``n`` <= 0 or ``n`` >= their number): a subset that keeps every gait."""
+    if n <= 0 or n >= len(runs):
+        return list(runs)
+    by_f: dict[float, list[Run]] = {}
+    for r in runs:
+        by_f.setdefault(r.gait_frequency_hz, []).append(r)
+    out: list[Run] = []
+    while len(out) < n:
+        for lst in by_f.values():
+            if lst and len(out) < n:
+                out.append(lst.pop(0))
+    return out
