@@ -80,6 +80,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--contact choose: only least squares fits each contact law (--method lsq)")
     if args.current and args.method != "lsq":
         raise InputError("--current: only least squares fits the motor current (--method lsq)")
+    if args.method == "ppo" and (args.envs < 1 or args.timesteps < 1):
+        raise InputError(f"--envs and --timesteps must be >= 1 (PPO's environments and steps), got "
+                         f"{args.envs} and {args.timesteps}")
     train_paths, val_paths = expand(args.runs)
     val_paths += [Path(p) for p in args.holdout]
     if not train_paths:

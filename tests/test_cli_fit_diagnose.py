@@ -260,3 +260,10 @@ def test_check_and_diagnose_judge_the_parameters_of_the_law(soft_data, tmp_path,
     assert main(["diagnose", *map(str, train), "--holdout", str(hold), "--contact", "soft_constraint",
                  "--free", "mu_c,v_s", "--out", str(tmp_path / "d")]) == 2
     assert "--free v_s: the soft_constraint contact law does not read it" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("option", [["--envs", "0"], ["--timesteps", "0"]])
+def test_fit_ppo_refuses_no_environments_or_steps(tmp_path, capsys, option):
+    out = tmp_path / "never.json"
+    assert main(["fit", str(tmp_path / "run.csv"), "--method", "ppo", *option, "--out", str(out)]) == 2
+    assert "--envs and --timesteps must be >= 1" in capsys.readouterr().err and not out.exists()
