@@ -353,7 +353,7 @@ class Objective:
         executor: where parameter-vector chunks are evaluated (default: in-process).
         threads: threads of one batched evaluation (default: 2 in-process, 1 per worker
             process). Threads meet at a barrier every physics step, so use 1 when other
-            processes share the cores (e.g. PPO's environment processes).
+            processes share the cores (e.g. several fits run side by side).
         model: the robot (default: ``urdf/cobra.urdf``); worker processes load the same file.
     """
 
