@@ -27,6 +27,7 @@ import time
 import numpy as np
 
 from _results import RESULTS_DIR, write_results
+from _args import number_list
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
 from integrators import mujoco_twin
@@ -73,11 +74,8 @@ def parse_run_args(description: str, argv: list[str] | None) -> tuple[float, lis
     args = parser.parse_args(argv)
     if not args.duration > 1.0:
         parser.error(f"--duration must exceed the gait's 1 s smooth start, got {args.duration} s")
-    try:
-        gaits = [float(f) for f in args.gaits.split(",") if f.strip()]
-    except ValueError:
-        parser.error(f"--gaits: expected comma-separated frequencies [Hz], got {args.gaits!r}")
-    if not gaits or any(not f > 0 for f in gaits):
+    gaits = number_list(parser, "--gaits", args.gaits, float)
+    if any(not f > 0 for f in gaits):
         parser.error(f"--gaits: expected positive frequencies [Hz], got {args.gaits!r}")
     return args.duration, gaits
 

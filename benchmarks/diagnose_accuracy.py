@@ -24,6 +24,7 @@ from typing import Callable
 import numpy as np
 
 from _results import write_results
+from _args import number_list
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.generators.dataset import DATA_DIR, RunPlan, load_manifest, record
@@ -180,11 +181,8 @@ def main() -> None:
     parser.add_argument("--bisections", type=int, default=2,
                         help="bisections between the last magnitude named and the first missed (--detection-limit)")
     args = parser.parse_args()
-    try:
-        seeds = [int(x) for x in args.seeds.split(",") if x.strip()]
-    except ValueError:
-        parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
-    if not seeds or set(seeds) & set(DEV_SEEDS):
+    seeds = number_list(parser, "--seeds", args.seeds)
+    if set(seeds) & set(DEV_SEEDS):
         parser.error(f"--seeds: give at least one seed, none of the development seeds {DEV_SEEDS}; got {args.seeds!r}")
     for option in ("halvings", "bisections"):
         if getattr(args, option) < 0:

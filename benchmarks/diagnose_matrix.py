@@ -57,6 +57,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import RESULTS_DIR, write_results  # noqa: E402
+from benchmarks._args import number_list  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from cobra_model.parameters import CONTACT_LAWS  # noqa: E402
 from integrators.simulator import Simulator  # noqa: E402
@@ -305,10 +306,7 @@ def main(argv: list[str] | None = None) -> int:
     if bad or not engines:
         parser.error(f"unknown engine(s), effect(s) or magnitude(s): {bad}; engines {', '.join(ENGINES)}, "
                      f"effects {', '.join(effects_all)}, magnitudes realistic, near_limit")
-    try:
-        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
-    except ValueError:
-        parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
+    seeds = number_list(parser, "--seeds", args.seeds)
     if set(seeds) & set(DEV_SEEDS):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     law = args.mujoco_contact_law

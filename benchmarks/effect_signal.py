@@ -33,6 +33,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import write_results  # noqa: E402
+from benchmarks._args import number_list  # noqa: E402
 from benchmarks.diagnose_matrix import ENGINES, EVAL_SEEDS, MUJOCO_OPTIONS, NEAR_LIMIT, Job, make_runs  # noqa: E402
 from cobra_model import CobraModel  # noqa: E402
 from cobra_model.run import Run  # noqa: E402
@@ -65,12 +66,7 @@ def main(argv: list[str] | None = None) -> None:
     unknown = sorted(set(engines) - set(ENGINES))
     if unknown:
         parser.error(f"--engines: unknown {unknown}; known: {', '.join(ENGINES)}")
-    try:
-        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
-    except ValueError:
-        parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
-    if not seeds:
-        parser.error("--seeds: give at least one seed")
+    seeds = number_list(parser, "--seeds", args.seeds)
     model, library = CobraModel.load(), EffectLibrary()
     rows = []
     for engine in engines:

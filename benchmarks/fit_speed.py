@@ -24,13 +24,13 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import ScalarFormatter
 
 from _results import RESULTS_DIR, write_results
+from _args import number_list
 from cobra_model import ModelParameters
 from cobra_model.run import Run
 from held_out import final_head_errors, ppo_progress
 from sysid.generators.dataset import DATA_DIR, load_manifest
 from sysid.identification.lsq import fit_lsq
 from sysid.identification.objective import Objective
-from sysid.gap.report import evaluate_held_out
 from sysid.identification.splits import read_runs
 
 #: Seeds PPO's settings were chosen on (``sysid.identification.ppo.PPOSettings``): not reported.
@@ -49,9 +49,10 @@ def evals_per_second(objective: Objective, k: int) -> float:
     return k / (time.perf_counter() - t0)
 
 
-def held_out_path(runs: Sequence[Run], path: Sequence[tuple[float, int, ModelParameters]]) -> list[tuple[float, float]]:
-    """(seconds, summed held-out final head error [m]) at every point of a method's path."""
-    return [(float(sec), float(final_head_errors(runs, params).sum())) for sec, _, params in path]
+def held_out_path(runs: Sequence[Run], path: Sequence[tuple[float, int, ModelParameters]]
+                  ) -> list[tuple[float, np.ndarray]]:
+    """(seconds, final head error [m] of each held-out run) at every point of a method's path."""
+    return [(float(sec), final_head_errors(runs, params)) for sec, _, params in path]
 
 
 def first_within(curve: Sequence[tuple[float, float]], bound_m: float) -> float | None:
@@ -86,10 +87,7 @@ def main() -> None:
     parser.add_argument("--ppo-budget", type=float, default=600.0, help="PPO wall-time budget per seed [s]")
     parser.add_argument("--ppo-seeds", default="1,2", help="comma-separated PPO seeds to report")
     args = parser.parse_args()
-    try:
-        seeds = [int(s) for s in args.ppo_seeds.split(",")]
-    except ValueError:
-        parser.error(f"--ppo-seeds must be comma-separated integers, got {args.ppo_seeds!r}")
+    seeds = number_list(parser, "--ppo-seeds", args.ppo_seeds)
     if args.lsq_iterations < 1 or args.ppo_budget <= 0:
         parser.error("--lsq-iterations must be >= 1 and --ppo-budget > 0")
     train_paths, val_paths = load_manifest(DATA_DIR / "manifest.json")
@@ -111,17 +109,20 @@ def main() -> None:
         path = [(0.0, 0, nominal), *ppo.extra["best_history"], (ppo.seconds, ppo.extra["timesteps"], ppo.params)]
         rows.append((f"ppo_seed_{seed}", f"PPO (stable-baselines3), seed {seed}", time.perf_counter() - t0, ppo, path))
 
-    held = {key: evaluate_held_out(validation, nominal, res.params) for key, _, _, res, _ in rows}
-    curves = {name: held_out_path(validation, path) for _, name, _, _, path in rows}
-    target = float(final_head_errors(validation, lsq.params).sum())
+    # every parameter set is simulated once: a path's last point is the method's result
+    before = final_head_errors(validation, nominal)
+    paths = {key: held_out_path(validation, path) for key, _, _, _, path in rows}
+    curves = {name: [(sec, float(err.sum())) for sec, err in paths[key]] for key, name, _, _, _ in rows}
+    target = float(paths["lsq"][-1][1].sum())
     bound = WITHIN * target
-    freqs = [h.freq_hz for h in next(iter(held.values()))]
+    envs = rows[-1][3].extra["n_envs"]
+    freqs = [r.gait_frequency_hz for r in validation]
     head = " | ".join(f"{f:g} Hz" for f in freqs)
     lines = ["# Identification speed on the reference dataset", "",
              f"{len(train)} training runs, {len(validation)} held out; {len(nominal.free_names)} free parameters; "
              f"least squares with {args.lsq_iterations} Jacobians per horizon stage at most; PPO for "
              f"{args.ppo_budget:g} s per seed, {settings.episode_runs} training runs per evaluation (spread over the "
-             f"gaits), {rows[-1][3].extra['n_envs']} environments per batched evaluation, seeds {seeds} (settings chosen on seed "
+             f"gaits), {envs} environments per batched evaluation, seeds {seeds} (settings chosen on seed "
              f"{list(DEVELOPMENT_SEEDS)}, not reported).", "",
              "| objective evaluation (all training runs) | evaluations / s |", "|---|---:|",
              f"| one at a time | {one:.2f} |", f"| batched, 10 parameter vectors | {batched:.2f} ({batched / one:.1f}x) |",
@@ -131,7 +132,7 @@ def main() -> None:
              "|---|---:|---:|---|" + "---|" * len(freqs) + "---:|---:|---:|"]
     records = []
     for (key, name, wall, res, _), curve in zip(rows, curves.values()):
-        pairs = [(h.gap_before.head.final, h.gap_after.head.final) for h in held[key]]
+        pairs = list(zip(before.tolist(), paths[key][-1][1].tolist()))
         summed = float(sum(a for _, a in pairs))
         reach = first_within(curve, bound)
         cells = " | ".join(f"{b:.3f} -> {a:.3f}" for b, a in pairs)
@@ -149,7 +150,7 @@ def main() -> None:
     meta = {"train_runs": len(train), "held_out_runs": len(validation), "free": list(nominal.free_names),
             "lsq_iterations_per_stage": args.lsq_iterations, "ppo_budget_s": args.ppo_budget, "ppo_seeds": seeds,
             "development_seeds": list(DEVELOPMENT_SEEDS), "ppo_settings": dataclasses.asdict(settings),
-            "ppo_envs": rows[-1][3].extra["n_envs"],
+            "ppo_envs": envs,
             "evaluations_per_s": {"one": one, "batched_10": batched}, "lsq_summed_final_head_m": target}
     md = "\n".join(lines)
     write_results("fit_speed", records, meta, md)

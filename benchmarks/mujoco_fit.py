@@ -55,6 +55,7 @@ from typing import Callable
 import numpy as np
 
 from _results import write_results
+from _args import number_list
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
@@ -232,10 +233,10 @@ def main(argv: list[str] | None = None) -> int:
     chosen = [c.strip() for c in args.configs.split(",") if c.strip()]
     if not chosen or any(c not in configs for c in chosen):
         parser.error(f"--configs: choose from {', '.join(configs)}, got {args.configs!r}")
-    seeds = [int(s) for s in args.seeds.split(",")]
+    seeds = number_list(parser, "--seeds", args.seeds)
     if any(s in DEV_SEEDS for s in seeds):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
-    headings = [float(h) for h in args.headings.split(",")]
+    headings = number_list(parser, "--headings", args.headings, float)
     laws = [law.strip() for law in args.laws.split(",") if law.strip()]
     if not laws or any(law not in LAW_FREE for law in laws):
         parser.error(f"--laws: choose from {', '.join(LAW_FREE)}, got {args.laws!r}")

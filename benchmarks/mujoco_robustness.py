@@ -49,6 +49,7 @@ from typing import Any, Callable
 import numpy as np
 
 from _results import write_results
+from _args import number_list
 
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.run import Run
@@ -142,10 +143,7 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(f"--cases: unknown case(s) {unknown or chosen}; choose from {', '.join(cases)}")
     if not args.duration > 1.0:
         parser.error(f"--duration must exceed the gait's 1 s smooth start, got {args.duration} s")
-    try:
-        seeds = [int(x) for x in args.seeds.split(",") if x.strip()]
-    except ValueError:
-        parser.error(f"--seeds: expected comma-separated integers, got {args.seeds!r}")
+    seeds = number_list(parser, "--seeds", args.seeds)
     if any(x in DEV_SEEDS for x in seeds):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     base = twin_options(truth) if args.contact == "default" else stiff_contact(twin_options(truth))

@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from _results import write_results
+from _args import number_list
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.run import Run
 from held_out import final_head_errors, ppo_progress, time_to_reach
@@ -70,12 +71,7 @@ def main() -> None:
     parser.add_argument("--ppo-seeds", default="1", help="comma-separated PPO seeds, one run each (default 1; "
                         "PPO's settings were chosen with seed 0, benchmarks/fit_speed.py)")
     args = parser.parse_args()
-    try:
-        seeds = [int(s) for s in args.ppo_seeds.split(",") if s.strip()]
-    except ValueError:
-        parser.error(f"--ppo-seeds: expected comma-separated integers, got {args.ppo_seeds!r}")
-    if not seeds:
-        parser.error("--ppo-seeds: give at least one seed")
+    seeds = number_list(parser, "--ppo-seeds", args.ppo_seeds)
     if args.seed in DEV_SEEDS:
         parser.error(f"--seed: {args.seed} was used while developing ({DEV_SEEDS}); report another")
     if args.guesses < 1 or args.ppo_timesteps < 1 or args.lsq_iterations < 1:
