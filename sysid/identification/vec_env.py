@@ -18,7 +18,6 @@ from gymnasium import spaces
 from stable_baselines3.common.vec_env import VecEnv
 
 from cobra_model.errors import InputError
-from cobra_model.parameters import ModelParameters
 from sysid.identification.env import TermsObjective
 from sysid.identification.lsq import feasible
 from sysid.identification.objective import ObjectiveTerms
@@ -192,9 +191,3 @@ class BatchedTuningVecEnv(VecEnv):
 
     def env_is_wrapped(self, wrapper_class: type, indices: None | int | Iterable[int] = None) -> list[bool]:
         return [False] * len(self._indices(indices))
-
-    # -- results ------------------------------------------------------------------------------
-    @property
-    def best_params(self) -> ModelParameters:
-        """The best parameters evaluated so far (the initial ones if nothing beat them)."""
-        return self.objective.params.from_unit(self.best_z)
