@@ -29,7 +29,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-effects", type=int, default=2, help="effects to look for in turn (default 2)")
     p.add_argument("--params", help="starting parameter file (default nominal)")
     add_contact_option(p, "fit and diagnose", choose="diagnose under each law and keep the diagnosis whose "
-                       "final model has the lower held-out cost (twice the time)")
+                       "final model has the lower held-out cost (the time of one diagnosis per law)")
     p.add_argument("--free", help="comma-separated parameters the fits tune (default: all not frozen that the "
                    "contact law reads)")
     p.add_argument("--fit-runs", type=int, default=DiagnoseConfig.fit_runs,
@@ -78,7 +78,7 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
         if bar.disable:
             print(f"  ... {message}", flush=True, file=sys.stderr if json_out else sys.stdout)  # --json: stdout is the JSON
 
-    if contact_law == "choose":
+    if len(starts) > 1:
         result = diagnose(train, held, law_starts=starts, config=config, progress=progress)
     else:
         result = diagnose(train, held, params=next(iter(starts.values())), config=config, progress=progress)

@@ -5,7 +5,7 @@ import argparse
 import json
 from pathlib import Path
 
-from cobra_cli.common import add_contact_option, check_writable, law_starts
+from cobra_cli.common import add_contact_option, check_writable, chosen_laws, law_starts
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 from sysid.identification.executor import make_executor
@@ -75,9 +75,9 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--report {report_dir}: exists and is not a directory")
         if report_dir.exists():
             check_writable(report_dir / "report.html", args.force)
-    choosing = args.contact == "choose"
+    choosing = chosen_laws(args.contact) is not None
     if choosing and args.method != "lsq":
-        raise InputError("--contact choose: only least squares fits each contact law (--method lsq)")
+        raise InputError(f"--contact {args.contact}: only least squares fits each contact law (--method lsq)")
     if args.current and args.method != "lsq":
         raise InputError("--current: only least squares fits the motor current (--method lsq)")
     if args.method == "ppo" and (args.envs < 1 or args.timesteps < 1):
@@ -88,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
     if not train_paths:
         raise InputError("no training runs given")
     if choosing and not val_paths:
-        raise InputError("--contact choose needs held-out runs to choose on (--holdout RUN..., or a dataset "
+        raise InputError(f"--contact {args.contact} needs held-out runs to choose on (--holdout RUN..., or a dataset "
                          "manifest with a validation split); none given")
     train = read_runs(train_paths)
     validation = read_runs(val_paths)
@@ -124,7 +124,7 @@ def run(args: argparse.Namespace) -> int:
             return fit_lsq(o, max_iterations=args.max_iterations, budget_seconds=budget, progress=progress)
 
         if choosing:
-            choice = choose_contact_law(train, validation, weights=weights, fit=lsq, starts=starts,
+            choice = choose_contact_law(train, validation, laws=tuple(starts), weights=weights, fit=lsq, starts=starts,
                                         executor=executor, progress=lambda line: bar.write(line))
             for f in choice.fits:
                 print(f"  {f.law:15s} training cost {f.fit.cost:.4g}, held-out cost {f.held_out_cost:.4g}"

@@ -51,11 +51,50 @@ def fit_start(path: str | Path | None, contact_law: str | None, free: str | None
     return params.with_frozen(frozen=frozen_names)  # the user's --frozen still holds
 
 
+def chosen_laws(contact: str | None) -> tuple[str, ...] | None:
+    """The contact laws ``--contact`` chooses among: every law of :data:`CONTACT_LAWS` for
+    ``choose``, the listed ones for a comma-separated list (``compliant,soft_constraint``); None
+    for one law (or none given: the parameter file's).
+
+    Raises:
+        InputError: naming the value if a listed law is unknown.
+    """
+    if contact is None:
+        return None
+    if contact == "choose":
+        return CONTACT_LAWS
+    laws = listed_laws(contact)
+    return laws if len(laws) > 1 else None
+
+
+def listed_laws(contact: str) -> tuple[str, ...]:
+    """The laws of a ``--contact`` value other than ``choose``: one law or a comma-separated list.
+
+    Raises:
+        InputError: naming the value if a law is unknown or none is given.
+    """
+    laws = tuple(dict.fromkeys(law.strip() for law in contact.split(",") if law.strip()))
+    unknown = [law for law in laws if law not in CONTACT_LAWS]
+    if unknown or not laws:
+        raise InputError(f"--contact {contact!r}: expected one of {', '.join(CONTACT_LAWS)}, 'choose' (all of "
+                         f"them) or a comma-separated list of laws to choose among")
+    return laws
+
+
+def _contact_value(text: str) -> str:
+    """argparse type of ``--contact`` where choosing is allowed: the value, checked."""
+    try:
+        chosen_laws(text)
+    except InputError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return text
+
+
 def law_starts(path: str | Path | None, contact_law: str | None, free: str | None, frozen: str | None,
                train: Sequence[Run], held_out: Sequence[Run], *, check: bool, out: TextIO | None = None
                ) -> tuple[dict[str, ModelParameters], dict[str, DataCheck | None]]:
     """The starting parameters of ``cobra fit`` and ``cobra diagnose`` per contact law they try:
-    every law of :data:`CONTACT_LAWS` for ``--contact choose``, else the one law given (the
+    the laws :func:`chosen_laws` reads from ``--contact``, else the one law given (the
     parameter file's when None), each from :func:`fit_start`, with the data check's frozen
     parameters when ``check`` (run per law: each law frees its own ground parameters). Returns
     (law -> start, law -> data check or None); findings go to ``out`` (default stdout).
@@ -66,13 +105,14 @@ def law_starts(path: str | Path | None, contact_law: str | None, free: str | Non
     """
     from cobra_cli.cmd_check import check_before_fit
 
-    choosing = contact_law == "choose"
+    laws = chosen_laws(contact_law)
+    choosing = laws is not None
     if choosing and free:
-        raise InputError("--contact choose fits each law with the free set it reads; drop --free, or give "
-                         "--contact compliant or --contact soft_constraint with it")
+        raise InputError(f"--contact {contact_law} fits each law with the free set it reads; drop --free, or give "
+                         f"one law ({', '.join(CONTACT_LAWS)}) with it")
     starts: dict[str, ModelParameters] = {}
     checks: dict[str, DataCheck | None] = {}
-    for law in CONTACT_LAWS if choosing else (contact_law,):
+    for law in laws if choosing else (listed_laws(contact_law)[0] if contact_law else None,):
         start = fit_start(path, law, free, frozen, out=out)
         data_check = None
         if check:
@@ -86,13 +126,18 @@ def law_starts(path: str | Path | None, contact_law: str | None, free: str | Non
 def add_contact_option(p: argparse.ArgumentParser, what: str, choose: str = "") -> None:
     """``--contact LAW``: the contact law to {what} with, overriding the parameter file's; with
     ``choose`` (what choosing does, for the help), also ``--contact choose``."""
-    p.add_argument("--contact", choices=(*CONTACT_LAWS, "choose") if choose else CONTACT_LAWS, default=None,
-                   help=f"contact law to {what} with: 'compliant' (spring-damper ground, Stribeck friction) or "
-                        "'soft_constraint' (MuJoCo's: a soft constraint on the friction pyramid, time constant "
-                        "from the parameter contact_time_constant)"
-                        + (f", or 'choose': {choose}" if choose else "")
-                        + " (default: the parameter file's law, which a fit records; compliant for the nominal "
-                          "parameters)")
+    laws = ("'compliant' (spring-damper ground, Stribeck friction), 'soft_constraint' (MuJoCo's default: a soft "
+            "constraint on the friction pyramid, time constant from the parameter contact_time_constant) or "
+            "'soft_elliptic' (the same on MuJoCo's elliptic friction cone)")
+    if choose:
+        p.add_argument("--contact", type=_contact_value, default=None, metavar="LAW|choose|LAW,LAW...",
+                       help=f"contact law to {what} with: {laws}; or 'choose' (every law) or a comma-separated "
+                            f"list of laws: {choose} (default: the parameter file's law, which a fit records; "
+                            "compliant for the nominal parameters)")
+        return
+    p.add_argument("--contact", choices=CONTACT_LAWS, default=None,
+                   help=f"contact law to {what} with: {laws} (default: the parameter file's law, which a fit "
+                        "records; compliant for the nominal parameters)")
 
 
 def check_writable(path: str | Path, force: bool) -> Path:

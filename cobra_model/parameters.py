@@ -132,10 +132,11 @@ _NOMINAL_BY_NAME: dict[str, Parameter] = {p.name: p for p in NOMINAL}
 
 #: The ground-contact laws a model can have (``integrators.simulator`` implements them):
 #: ``compliant``, a spring-damper normal force with Coulomb/static/viscous (Stribeck) friction on
-#: it, and ``soft_constraint``, MuJoCo's soft constraint on the friction pyramid's edges. The law is
+#: it, ``soft_constraint``, MuJoCo's soft constraint on the friction pyramid's edges (its default
+#: cone), and ``soft_elliptic``, the same constraint on MuJoCo's elliptic friction cone. The law is
 #: part of the model's structure: a parameter set carries it (:attr:`ModelParameters.contact_law`),
 #: because its ground values mean something only under that law.
-CONTACT_LAWS: tuple[str, ...] = ("compliant", "soft_constraint")
+CONTACT_LAWS: tuple[str, ...] = ("compliant", "soft_constraint", "soft_elliptic")
 
 #: Parameters that may be expanded to one value per joint.
 PER_JOINT_CAPABLE: tuple[str, ...] = ("armature", "joint_damping", "motor_km")

@@ -63,7 +63,7 @@ class BatchSimulator:
                         for a, b in zip(np.r_[0, bounds], np.r_[bounds, len(params)])]
         # the soft-constraint law needs each environment's inverse mass matrix (one Data per group)
         self._models = [(m, m.createData()) for m in (self.sims[self._slots[a]].model.pin_model for a, _, _ in self._groups)
-                        ] if first.contact_law == "soft_constraint" else []
+                        ] if first.contact_law in K.SOFT_LAWS else []
         self.act = np.ascontiguousarray(np.stack([s.act for s in self.sims]))
         self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
         self._first = first
@@ -121,7 +121,7 @@ class BatchSimulator:
         KR = np.empty((n, len(self.model.chain.parents), 3, 3))  # kernel workspace
         KV = np.empty((n, len(self.model.chain.parents), 6, 3))
         on = np.ones(self.model.n_joints, dtype=np.bool_)
-        soft = self._first.contact_law == "soft_constraint"
+        soft = self._first.contact_law in K.SOFT_LAWS
         if soft:
             nv = self.model.nv
             MINV = np.empty((n, nv, nv))
@@ -153,7 +153,8 @@ class BatchSimulator:
                     for e in range(a, b):
                         MINV[e] = pin.computeMinverse(pm, data, Q[e])
                 K.batch_soft_contact_acceleration(V, TAU, MINV, NLE.T, self.model.chain.floating, f._chain_i[:, 0],
-                                                  f._chain_i[:, 2], f._feat_i[:, 0], X, KR, KV, ground, WARM, A.T)
+                                                  f._chain_i[:, 2], f._feat_i[:, 0], X, KR, KV, ground,
+                                                  K.SOFT_LAWS[self._first.contact_law], WARM, A.T)
             else:
                 for a, b, pool in self._groups:
                     pin.abaInParallel(self.threads, pool, Q[a:b].T, V[a:b].T, TAU[a:b].T, A[:, a:b])

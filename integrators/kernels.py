@@ -54,14 +54,18 @@ GROUND_PARAMETERS: dict[str, int] = {
     "contact_time_constant": G_TC,
 }
 #: The ground parameters each contact law reads (``cobra_model.parameters.CONTACT_LAWS``); the
-#: others do not enter its forces. The soft-constraint law's normal stiffness and damping are
-#: its time constant (``soft_contact_acceleration``); it has no Stribeck or viscous term and its
-#: friction limit is the pyramid, not ``friction_cone``.
+#: others do not enter its forces. The soft-constraint laws' normal stiffness and damping are
+#: their time constant (``soft_contact_acceleration``); they have no Stribeck or viscous term and
+#: their friction limit is the pyramid or the elliptic cone, not ``friction_cone``.
 CONTACT_LAW_PARAMETERS: dict[str, tuple[str, ...]] = {
     "compliant": ("k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", "lateral_friction_ratio", "friction_cone",
                   "contact_rounding"),
     "soft_constraint": ("mu_c", "lateral_friction_ratio", "contact_time_constant", "contact_rounding"),
+    "soft_elliptic": ("mu_c", "lateral_friction_ratio", "contact_time_constant", "contact_rounding"),
 }
+#: The contact laws that are MuJoCo's soft constraint (:func:`soft_contact_acceleration`), each
+#: with whether its friction cone is elliptic (else the pyramid).
+SOFT_LAWS: dict[str, bool] = {"soft_constraint": False, "soft_elliptic": True}
 #: Where a per-joint parameter lands in ``act`` (packed with :meth:`ModelParameters.per_joint`).
 #: ``A_RKM`` (the motor constant times the gear ratio) and the settings' ``A_COULOMB_EPS`` are
 #: packed by the simulator itself.
@@ -631,21 +635,23 @@ def nonnegative_qp(M, r, f):
 
 
 @njit(cache=True)
-def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1, mu2):
-    """The friction pyramid's edge rows of every touching point (``X[k, 2] < 0``), in feature order.
+def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1, mu2, elliptic=False):
+    """The constraint rows of every touching point (``X[k, 2] < 0``), in feature order.
 
-    Returns ``rows`` (4 n, nv): ``J_n + mu1 J_t1``, ``J_n - mu1 J_t1``, ``J_n + mu2 J_t2``,
-    ``J_n - mu2 J_t2`` for each of the n touching points, ``J_*`` the point's world Jacobian
-    along the ground normal ``z``, the body's x axis on the ground ``t1`` and ``t2 = z x t1``
-    (Pinocchio's velocity convention: a floating root's columns act in its own frame); and
-    ``depth`` (4 n,) the points' heights [m] (< 0), repeated per edge.
+    Returns ``rows`` and ``depth``. On the friction pyramid (``elliptic`` False) ``rows`` is
+    (4 n, nv): ``J_n + mu1 J_t1``, ``J_n - mu1 J_t1``, ``J_n + mu2 J_t2``, ``J_n - mu2 J_t2``
+    for each of the n touching points; on the elliptic cone (3 n, nv): ``J_n``, ``J_t1``,
+    ``J_t2``. ``J_*`` is the point's world Jacobian along the ground normal ``z``, the body's x
+    axis on the ground ``t1`` and ``t2 = z x t1`` (Pinocchio's velocity convention: a floating
+    root's columns act in its own frame); ``depth`` (one per row) the points' heights [m] (< 0).
     """
+    per = 3 if elliptic else 4
     touching = 0
     for k in range(X.shape[0]):
         if X[k, 2] < 0.0:
             touching += 1
-    rows = np.zeros((4 * touching, nv))
-    depth = np.empty(4 * touching)
+    rows = np.zeros((per * touching, nv))
+    depth = np.empty(per * touching)
     R, p, aw = kin_R, kin_v[:, 0], kin_v[:, 3]
     Jp = np.zeros((3, nv))
     row = 0
@@ -678,20 +684,205 @@ def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1,
             jn = Jp[2, col]
             j1 = Jp[0, col] * t1x + Jp[1, col] * t1y
             j2 = -Jp[0, col] * t1y + Jp[1, col] * t1x
-            rows[row, col] = jn + mu1 * j1
-            rows[row + 1, col] = jn - mu1 * j1
-            rows[row + 2, col] = jn + mu2 * j2
-            rows[row + 3, col] = jn - mu2 * j2
-        for e in range(4):
+            if elliptic:
+                rows[row, col], rows[row + 1, col], rows[row + 2, col] = jn, j1, j2
+            else:
+                rows[row, col] = jn + mu1 * j1
+                rows[row + 1, col] = jn - mu1 * j1
+                rows[row + 2, col] = jn + mu2 * j2
+                rows[row + 3, col] = jn - mu2 * j2
+        for e in range(per):
             depth[row + e] = x2
-        row += 4
+        row += per
     return rows, depth
 
 
 @njit(cache=True)
+def cone_projection(p0, p1, p2, slope, H):
+    """Euclidean projection ``g`` of ``p`` onto the circular cone ``|(g1, g2)| <= slope g0``, and
+    its Jacobian ``dg/dp`` in ``H`` (3, 3): ``p`` itself inside the cone, 0 inside its polar
+    cone, else the nearest point of the cone's surface."""
+    t = np.sqrt(p1 * p1 + p2 * p2)
+    if t <= slope * p0:
+        for i in range(3):
+            for j in range(3):
+                H[i, j] = 1.0 if i == j else 0.0
+        return p0, p1, p2
+    if slope * t <= -p0:
+        H[:, :] = 0.0
+        return 0.0, 0.0, 0.0
+    k = 1.0 / (1.0 + slope * slope)
+    g0 = (p0 + slope * t) * k
+    e1, e2 = p1 / t, p2 / t
+    s = slope * g0 / t
+    H[0, 0] = k
+    H[0, 1] = H[1, 0] = slope * e1 * k
+    H[0, 2] = H[2, 0] = slope * e2 * k
+    H[1, 1] = slope * slope * e1 * e1 * k + s * (1.0 - e1 * e1)
+    H[2, 2] = slope * slope * e2 * e2 * k + s * (1.0 - e2 * e2)
+    H[1, 2] = H[2, 1] = slope * slope * e1 * e2 * k - s * e1 * e2
+    return g0, slope * g0 * e1, slope * g0 * e2
+
+
+@njit(cache=True)
+def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Hc):
+    """The primal cost of :func:`elliptic_contact_acceleration` at acceleration ``a``; the
+    contact forces there in ``f`` and each contact's projection Jacobian in ``Hc``."""
+    m, nv = rows.shape
+    cost = 0.0
+    for i in range(nv):
+        di = a[i] - a0[i]
+        acc = 0.0
+        for j in range(nv):
+            acc += M[i, j] * (a[j] - a0[j])
+        cost += 0.5 * di * acc
+    p = np.empty(3)
+    for c in range(m // 3):
+        for e in range(3):
+            r = 3 * c + e
+            w = -aref[r]
+            for col in range(nv):
+                w += rows[r, col] * a[col]
+            p[e] = -w / sR[r]
+        g0, g1, g2 = cone_projection(p[0], p[1], p[2], slope, Hc[c])
+        f[3 * c], f[3 * c + 1], f[3 * c + 2] = g0 / sR[3 * c], g1 / sR[3 * c + 1], g2 / sR[3 * c + 2]
+        cost += 0.5 * (g0 * g0 + g1 * g1 + g2 * g2)
+    return cost
+
+
+@njit(cache=True)
+def elliptic_contact_acceleration(D, a0, v, rows, depth, mu1, mu2, tc, f, a_out):
+    """Accelerations (nv,) under MuJoCo's soft constraint on the elliptic friction cone
+    (condim 3, ``cone="elliptic"``, ``impratio`` 1), by Newton's method on its primal problem.
+
+    Each touching point carries a force ``f = (f_n, f_1, f_2)`` on its rows ``J_n, J_t1, J_t2``
+    (:func:`soft_contact_rows` with ``elliptic``) inside the cone ``|(f_1 / mu1, f_2 / mu2)| <= f_n``;
+    together they minimise ``f (A + R) f / 2 - f (a_ref - J a0)``, ``A = J D^-1 J^T``, with
+
+        R_n = R_1 = (1 - d) / d a_n,  R_2 = R_1 mu1^2 / mu2^2,  a_n = J_n D^-1 J_n^T,
+        a_ref,n = -b J_n v - k d r,   a_ref,t = -b J_t v,   b = 2 / (d_max tc),  k = 1 / (d_max^2 tc^2 zeta^2),
+
+    MuJoCo's regulariser and reference acceleration on this cone (the friction rows carry no
+    position term; their ``R`` makes the cone circular in the coordinates ``R^(1/2) f``); ``a_n``
+    is taken from the current pose, as :func:`soft_contact_acceleration` does for the pyramid
+    (MuJoCo's ``diagApprox``: the body's weight at the reference pose). The same problem in
+    accelerations ``a`` (MuJoCo's primal form): minimise
+    ``(a - a0) M (a - a0) / 2 + sum |P(-R^(-1/2) (J a - a_ref))|^2 / 2`` over the contacts, ``P``
+    the projection onto that circular cone (:func:`cone_projection`); its gradient is
+    ``M (a - a0) - J^T f``. Newton steps with an Armijo line search on this convex,
+    piecewise-smooth cost, from ``a0 + D^-1 J^T f`` of the last step's forces, converge in a few
+    iterations (MuJoCo's default solver is also Newton's method on this cost).
+
+    Args:
+        D: ``M^-1`` (nv, nv), symmetric.
+        a0: acceleration without contact (nv,).
+        v: velocity (nv,).
+        rows, depth: :func:`soft_contact_rows` (elliptic).
+        mu1, mu2: friction along the body and sideways [1]; tc: time constant [s].
+        f: (3 n,) the last step's forces [N] on entry (the start), this step's on return.
+        a_out: output (nv,).
+
+    Returns:
+        the Newton iterations.
+    """
+    m, nv = rows.shape
+    M = np.linalg.inv(D)
+    W = rows @ D
+    d_max = SOFT_SOLIMP[1]
+    bcoef = 2.0 / (d_max * tc)
+    kcoef = 1.0 / (d_max * d_max * tc * tc * SOFT_DAMPRATIO * SOFT_DAMPRATIO)
+    sR = np.empty(m)
+    aref = np.empty(m)
+    for r0 in range(0, m, 3):
+        d = soft_impedance(depth[r0])
+        a_n = 0.0
+        for col in range(nv):
+            a_n += W[r0, col] * rows[r0, col]
+        s_n = np.sqrt((1.0 - d) / d * a_n)
+        sR[r0], sR[r0 + 1], sR[r0 + 2] = s_n, s_n, s_n * mu1 / mu2
+        for e in range(3):
+            jv = 0.0
+            for col in range(nv):
+                jv += rows[r0 + e, col] * v[col]
+            aref[r0 + e] = -bcoef * jv
+        aref[r0] -= kcoef * d * depth[r0]
+    a = a0.copy()
+    for col in range(nv):
+        for j in range(m):
+            a[col] += W[j, col] * f[j]
+    nc = m // 3
+    Hc = np.empty((nc, 3, 3))
+    Ht = np.empty((nc, 3, 3))
+    ft = np.empty(m)
+    cost = _elliptic_cost(rows, aref, sR, mu1, a, a0, M, f, Hc)
+    H = np.empty((nv, nv))
+    Jc = np.empty((3, nv))
+    HJ = np.empty((3, nv))
+    grad = np.empty(nv)
+    at = np.empty(nv)
+    iterations = 0
+    for it in range(1, 51):
+        size = 1e-300
+        for i in range(nv):
+            acc_m = 0.0
+            for j in range(nv):
+                acc_m += M[i, j] * (a[j] - a0[j])
+            acc_f = 0.0
+            for j in range(m):
+                acc_f += rows[j, i] * f[j]
+            grad[i] = acc_m - acc_f
+            size = max(size, abs(acc_m), abs(acc_f))
+        if np.max(np.abs(grad)) <= 1e-10 * size:
+            break
+        iterations = it
+        H[:, :] = M
+        for c in range(nc):
+            if Hc[c, 0, 0] == 0.0 and Hc[c, 1, 1] == 0.0:
+                continue                      # a contact separating (polar zone): no curvature
+            for e in range(3):
+                for col in range(nv):
+                    Jc[e, col] = rows[3 * c + e, col] / sR[3 * c + e]
+            for e in range(3):
+                for col in range(nv):
+                    HJ[e, col] = Hc[c, e, 0] * Jc[0, col] + Hc[c, e, 1] * Jc[1, col] + Hc[c, e, 2] * Jc[2, col]
+            for i in range(nv):
+                j0, j1, j2 = Jc[0, i], Jc[1, i], Jc[2, i]
+                if j0 == 0.0 and j1 == 0.0 and j2 == 0.0:
+                    continue
+                for j in range(i, nv):
+                    H[i, j] += j0 * HJ[0, j] + j1 * HJ[1, j] + j2 * HJ[2, j]
+        for i in range(nv):
+            for j in range(i):
+                H[i, j] = H[j, i]
+        step = np.linalg.solve(H, -grad)
+        slope = 0.0
+        for i in range(nv):
+            slope += grad[i] * step[i]
+        alpha = 1.0
+        while True:
+            for i in range(nv):
+                at[i] = a[i] + alpha * step[i]
+            ct = _elliptic_cost(rows, aref, sR, mu1, at, a0, M, ft, Ht)
+            if ct <= cost + 1e-4 * alpha * slope or alpha < 1e-10:
+                break
+            alpha *= 0.5
+        moved = np.max(np.abs(at - a))
+        a[:] = at
+        f[:] = ft
+        Hc[:, :, :] = Ht
+        cost = ct
+        if moved <= 1e-14 * (1.0 + np.max(np.abs(a))):
+            break
+    a_out[:] = a
+    return iterations
+
+
+@njit(cache=True)
 def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body, X, kin_R, kin_v,
-                              ground, warm, a_out):
-    """Accelerations (nv,) under the soft-constraint contact law, MuJoCo's (condim 3, pyramidal).
+                              ground, elliptic, warm, a_out):
+    """Accelerations (nv,) under the soft-constraint contact law, MuJoCo's (condim 3), on the
+    friction pyramid or, with ``elliptic``, on the elliptic cone
+    (:func:`elliptic_contact_acceleration`; the rest of this docstring is the pyramid's).
 
     Every touching point (``X[k, 2] < 0``, from the last :func:`generalized_forces` on this
     state with the compliant ground switched off) gets the four edge rows
@@ -727,7 +918,9 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
             velocities :func:`ground_forces` left.
         ground: the ground parameters: ``mu1 = G_MU_C`` along the body, ``mu2 = mu1 G_LATERAL``
             sideways [1], the time constant ``tc = G_TC`` [s] (the others are unused).
-        warm: (nf, 4) each feature's edge forces [N] of the last step, the solver's start;
+        elliptic: the elliptic cone instead of the pyramid.
+        warm: (nf, 4) each feature's edge forces [N] of the last step (on the elliptic cone its
+            normal and two friction forces in the first three columns), the solver's start;
             overwritten with this step's (zero where not touching).
         a_out: output (nv,).
 
@@ -748,11 +941,30 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
             acc += D[i, j] * g[j]
         a_out[i] = acc
     mu1, tc = ground[G_MU_C], ground[G_TC]
-    rows, depth = soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1, mu1 * ground[G_LATERAL])
+    rows, depth = soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1, mu1 * ground[G_LATERAL],
+                                    elliptic)
     m = rows.shape[0]
     if m == 0:
         warm[:, :] = 0.0
         return 0
+    if elliptic:
+        f = np.empty(m)
+        row = 0
+        for k in range(X.shape[0]):
+            if X[k, 2] < 0.0:
+                for e in range(3):
+                    f[row + e] = warm[k, e]
+                row += 3
+        iterations = elliptic_contact_acceleration(D, a_out.copy(), v, rows, depth, mu1, mu1 * ground[G_LATERAL],
+                                                   tc, f, a_out)
+        row = 0
+        for k in range(X.shape[0]):
+            warm[k, :] = 0.0
+            if X[k, 2] < 0.0:
+                for e in range(3):
+                    warm[k, e] = f[row + e]
+                row += 3
+        return iterations
     W = rows @ D                      # (m, nv): rows D^-1, D^-1 symmetric
     A = W @ rows.T
     d_max = SOFT_SOLIMP[1]
@@ -820,8 +1032,9 @@ def batch_post_step(Q, V, A, scal, floating, Q_out, V_out, status):
 
 
 @njit(cache=True, parallel=True)
-def batch_soft_contact_acceleration(V, TAU, MINV, NLE, floating, parents, vidx, f_body, X, KR, KV, ground, WARM, A):
+def batch_soft_contact_acceleration(V, TAU, MINV, NLE, floating, parents, vidx, f_body, X, KR, KV, ground, elliptic,
+                                    WARM, A):
     """:func:`soft_contact_acceleration` for every environment ``e`` of a batch (rows)."""
     for e in prange(V.shape[0]):
         soft_contact_acceleration(V[e], TAU[e], MINV[e], NLE[e], floating, parents, vidx, f_body, X[e], KR[e], KV[e],
-                                  ground[e], WARM[e], A[e])
+                                  ground[e], elliptic, WARM[e], A[e])

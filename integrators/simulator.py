@@ -259,11 +259,13 @@ class Simulator:
 
     The ground-contact law is the parameter set's (``params.contact_law``, one of
     :data:`cobra_model.parameters.CONTACT_LAWS`): ``"compliant"``, the spring-damper ground with
-    the Stribeck friction law (:func:`integrators.kernels.ground_forces`), or ``"soft_constraint"``,
+    the Stribeck friction law (:func:`integrators.kernels.ground_forces`), ``"soft_constraint"``,
     MuJoCo's contact law: a soft constraint on the friction pyramid's edges, solved for all
-    contacts together (:func:`integrators.kernels.soft_contact_acceleration`); sliding friction
+    contacts together (:func:`integrators.kernels.soft_contact_acceleration`), or
+    ``"soft_elliptic"``, the same constraint on MuJoCo's elliptic friction cone
+    (:func:`integrators.kernels.elliptic_contact_acceleration`); both with sliding friction
     ``mu_c`` along the body and ``lateral_friction_ratio`` x ``mu_c`` sideways, no Stribeck or
-    viscous term, ``k1``/``k2`` unused, its time constant the parameter ``contact_time_constant``;
+    viscous term, ``k1``/``k2`` unused, their time constant the parameter ``contact_time_constant``;
     velocity-form steps only, about twice the cost.
 
     Args:
@@ -296,9 +298,9 @@ class Simulator:
             ground[slot] = effect_value(p, name)
         ground[K.G_EPS] = s.sgn_eps
         self.contact_law = p.contact_law
-        if self.contact_law == "soft_constraint":
+        if self.contact_law in K.SOFT_LAWS:
             if s.scheme != "velocity":
-                raise InputError(f"the soft_constraint contact law runs with the velocity scheme, got {s.scheme!r}")
+                raise InputError(f"the {self.contact_law} contact law runs with the velocity scheme, got {s.scheme!r}")
             # the compliant ground off (no normal force, hence no friction in the force kernels):
             # the contact forces come from the constraint (soft_contact_acceleration)
             ground[[K.G_K1, K.G_K2, K.G_MU_V]] = 0.0
@@ -439,7 +441,7 @@ class Simulator:
         K.soft_contact_acceleration(v, tau, pin.computeMinverse(model, data, q), pin.nonLinearEffects(model, data, q, v),
                                     self.model.chain.floating, self._chain_i[:, 0], self._chain_i[:, 2],
                                     self._feat_i[:, 0], self._X, self._kin_R, self._kin_v, self.ground,
-                                    self._soft_warm, a)
+                                    K.SOFT_LAWS[self.contact_law], self._soft_warm, a)
         return a
 
     def _momentum_step(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray,

@@ -196,9 +196,10 @@ def test_fit_with_the_ends_shape_free_starts_from_each_shape_and_keeps_the_cheap
 @pytest.mark.slow
 def test_fit_chooses_the_contact_law_that_predicts_the_held_out_run(soft_data, tmp_path, capsys):
     """``cobra fit --contact choose`` fits each law with the ground parameters it reads and keeps
-    the one with the lower held-out cost: on runs of the soft-constraint law, that law (no value
-    of the compliant ground's spring, damper and Stribeck curve reproduces a soft constraint,
-    ``benchmarks/results/contact_law.md``), recording both laws' fits in the parameter file."""
+    the one with the lower held-out cost: on runs of the soft-constraint law (on the pyramid),
+    that law (no value of the compliant ground's spring, damper and Stribeck curve reproduces a
+    soft constraint, ``benchmarks/results/contact_law.md``, and the elliptic cone's round
+    friction limit is not the pyramid's diamond), recording every law's fit in the parameter file."""
     train, hold = soft_data
     out = tmp_path / "chosen.json"
     assert main(["fit", *map(str, train), "--holdout", str(hold), "--contact", "choose", "--frozen",
@@ -209,42 +210,60 @@ def test_fit_chooses_the_contact_law_that_predicts_the_held_out_run(soft_data, t
     assert abs(fitted.mu_c - 0.22) < 0.01 and abs(fitted.contact_time_constant - 0.03) < 0.0045  # 15 %
     choice = json.loads(out.read_text())["fit"]["contact_choice"]
     held = {f["law"]: f["held_out_cost"] for f in choice["fits"]}
+    assert set(held) == {"compliant", "soft_constraint", "soft_elliptic"}
     assert choice["chosen"] == "soft_constraint" and held["soft_constraint"] < 0.5 * held["compliant"]
+    assert held["soft_constraint"] < held["soft_elliptic"]
     assert "k1" in {n for f in choice["fits"] if f["law"] == "compliant" for n in f["params"]}
     assert "these runs also chose the contact law" in printed
 
 
 @pytest.mark.slow
 def test_diagnose_chooses_the_contact_law_by_the_held_out_cost_after_the_effects(soft_data, tmp_path, capsys):
-    """``cobra diagnose --contact choose`` diagnoses under each law and keeps the diagnosis with
-    the lower held-out cost after its effects: the truth's soft constraint, under which nothing
-    is named (the runs hide no effect). The actuator, the truth's, is frozen in the starting
-    file (the ground is what the laws differ in; fewer free parameters keep the test short)."""
+    """``cobra diagnose --contact compliant,soft_constraint`` diagnoses under each listed law
+    (``choose``: every law) and keeps the diagnosis with the lower held-out cost after its
+    effects: the truth's soft constraint, under which nothing is named (the runs hide no
+    effect). The actuator, the truth's, is frozen in the starting file (the ground is what the
+    laws differ in; fewer free parameters and two laws keep the test short)."""
     train, hold = soft_data
     start = ModelParameters.nominal().with_frozen(frozen=["armature", "joint_damping", "motor_km"])
     start.save(tmp_path / "start.json")
-    assert main(["diagnose", *map(str, train), "--holdout", str(hold), "--contact", "choose", "--max-effects", "1",
-                 "--params", str(tmp_path / "start.json"), "--out", str(tmp_path / "d"), "--json"]) == 0
+    assert main(["diagnose", *map(str, train), "--holdout", str(hold), "--contact", "compliant,soft_constraint",
+                 "--max-effects", "1", "--params", str(tmp_path / "start.json"), "--out", str(tmp_path / "d"),
+                 "--json"]) == 0
     doc = json.loads(capsys.readouterr().out)
     choice = doc["contact_choice"]
     held = {f["law"]: f["held_out_cost"] for f in choice["laws"]}
+    assert set(held) == {"compliant", "soft_constraint"}
     assert choice["chosen"] == "soft_constraint" and held["soft_constraint"] < 0.5 * held["compliant"]
     assert doc["effects"] == []
     assert ModelParameters.load(tmp_path / "d" / "augmented_params.json").contact_law == "soft_constraint"
     assert "contact law: soft_constraint" in doc["verdict"]
 
 
-@pytest.mark.parametrize("extra, message", [
-    ([], "--contact choose needs held-out runs to choose on"),
-    (["--holdout", "HOLD", "--free", "mu_c"], "--contact choose fits each law with the free set it reads"),
-    (["--holdout", "HOLD", "--method", "ppo"], "--contact choose: only least squares fits each contact law"),
+@pytest.mark.parametrize("contact, extra, message", [
+    ("choose", [], "--contact choose needs held-out runs to choose on"),
+    ("choose", ["--holdout", "HOLD", "--free", "mu_c"], "--contact choose fits each law with the free set it reads"),
+    ("compliant,soft_elliptic", ["--holdout", "HOLD", "--method", "ppo"],
+     "--contact compliant,soft_elliptic: only least squares fits each contact law"),
 ])
-def test_fit_refuses_to_choose_the_contact_law_without_what_it_needs(soft_data, tmp_path, capsys, extra, message):
+def test_fit_refuses_to_choose_the_contact_law_without_what_it_needs(soft_data, tmp_path, capsys, contact, extra,
+                                                                      message):
     train, hold = soft_data
     extra = [str(hold) if a == "HOLD" else a for a in extra]
     out = tmp_path / "never.json"
-    assert main(["fit", *map(str, train), "--contact", "choose", *extra, "--out", str(out)]) == 2
+    assert main(["fit", *map(str, train), "--contact", contact, *extra, "--out", str(out)]) == 2
     assert message in capsys.readouterr().err and not out.exists()
+
+
+@pytest.mark.parametrize("command", ["fit", "diagnose"])
+def test_an_unknown_law_in_a_list_to_choose_among_is_named(soft_data, tmp_path, capsys, command):
+    train, hold = soft_data
+    with pytest.raises(SystemExit) as exc:
+        main([command, *map(str, train), "--holdout", str(hold), "--contact", "compliant,rigid",
+              "--out", str(tmp_path / "never")])
+    assert exc.value.code == 2 and not (tmp_path / "never").exists()
+    assert ("--contact 'compliant,rigid': expected one of compliant, soft_constraint, soft_elliptic, 'choose'"
+            in capsys.readouterr().err)
 
 
 def test_check_and_diagnose_judge_the_parameters_of_the_law(soft_data, tmp_path, capsys):

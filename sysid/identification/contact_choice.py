@@ -26,7 +26,7 @@ from cobra_model import design
 from cobra_model.errors import InputError
 from cobra_model.parameters import CONTACT_LAWS, ModelParameters
 from cobra_model.run import Run
-from integrators.kernels import CONTACT_LAW_PARAMETERS
+from integrators.kernels import CONTACT_LAW_PARAMETERS, SOFT_LAWS
 from sysid.identification.executor import Executor, LocalExecutor
 from sysid.identification.lsq import FitResult, fit_lsq
 from sysid.identification.objective import Objective, Weights
@@ -55,10 +55,10 @@ def unread_by_law(params: ModelParameters, names: Sequence[str]) -> list[str]:
 def free_for_law(params: ModelParameters) -> tuple[ModelParameters, str | None]:
     """``params`` with its free set fitted to its contact law, and a line saying what changed
     (None if nothing did): free ground parameters the law does not read are frozen (no data can
-    move them), and under the soft-constraint law ``contact_time_constant`` is freed, since it is
+    move them), and under a soft-constraint law ``contact_time_constant`` is freed, since it is
     that law's normal stiffness and damping as ``k1`` and ``k2`` are the compliant ground's."""
     frozen = unread_by_law(params, params.free_names)
-    freed = ["contact_time_constant"] if (params.contact_law == "soft_constraint"
+    freed = ["contact_time_constant"] if (params.contact_law in SOFT_LAWS
                                           and "contact_time_constant" not in params.free_names) else []
     if not frozen and not freed:
         return params, None
