@@ -128,10 +128,12 @@ def _mujoco_fit(doc: dict) -> list[tuple[str, str, str]]:
     laws = doc["meta"]["laws"]
     chosen = ", ".join(f"{law} {sum(r['chosen_law'] == law for r in rows) // 3}" for law in laws)
     joint = sum(bool(r["meets_joint_bound"]) for r in rows)
-    return [("base fit on MuJoCo's runs, contact law chosen on validation runs: held-out gaits with final head "
-             "error <= 5 cm, per contact configuration", f"{'; '.join(parts)} (laws chosen: {chosen} fits)", "all"),
-            ("base fit on MuJoCo's runs: held-out joint RMSE <= 1.5 x the encoders' floor", f"{joint} of {len(rows)}",
-             "all")]
+    configs = ", ".join(dict.fromkeys(r["config"] for r in rows))
+    return [(f"base fit on MuJoCo's runs, contact law chosen among {', '.join(laws)} on validation runs: held-out "
+             "gaits with final head error <= 5 cm, per contact configuration",
+             f"{'; '.join(parts)} (laws chosen: {chosen} fits)", "all"),
+            (f"base fit on MuJoCo's runs ({configs}; laws {', '.join(laws)}): held-out joint RMSE <= 1.5 x the "
+             "encoders' floor", f"{joint} of {len(rows)}", "all")]
 
 
 def _fit_speed(doc: dict) -> list[tuple[str, str, str]]:
@@ -194,7 +196,8 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "diagnose_matrix_soft_constraint": _matrix, "diagnose_matrix_choose": _matrix, "effect_signal": _signal,
     "diagnose_accuracy": _accuracy,
     "mujoco_robustness": _robustness,
-    "mujoco_robustness_stiff": _robustness, "mujoco_fit": _mujoco_fit, "contact_time_constant": _contact_time_constant,
+    "mujoco_robustness_stiff": _robustness, "mujoco_fit": _mujoco_fit,
+    "mujoco_fit_elliptic": _mujoco_fit, "contact_time_constant": _contact_time_constant,
     "contact_law": _contact_law,
     "coverage": _coverage, "fault_matrix": _faults,
 }

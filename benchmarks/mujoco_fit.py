@@ -18,8 +18,9 @@ Configurations (the robot's parameter error ``TRUTH`` in all; :mod:`sysid.genera
 Why the solref column matters: MuJoCo's contact time constant changes the robot's path by more
 than the 5 cm bound (``benchmarks/contact_time_constant.py``: over 6 s at 0.65 Hz the head ends
 0.40 m apart between 2 ms and 40 ms), and our compliant ground reaches MuJoCo's path only in
-MuJoCo's stiff limit. The soft-constraint contact law follows MuJoCo's soft contact
-(``benchmarks/contact_law.py``), so the base fit chooses between the two laws
+MuJoCo's stiff limit. The soft-constraint contact laws follow MuJoCo's soft contact
+(``benchmarks/contact_law.py``), on its pyramidal cone (``soft_constraint``) or its elliptic one
+(``soft_elliptic``), so the base fit chooses among the laws
 (:func:`sysid.identification.contact_choice.choose_contact_law`): each is fitted with its own
 ground parameters free (``LAW_FREE``) and the one with the lower objective cost on three
 validation runs (same gaits, heading ``h + 0.5 rad``, their own noise) is kept; the held-out runs
@@ -42,7 +43,10 @@ Seeds 7 and 5 (heading 0.3 rad; twin and stiff) were used while developing; the 
 Progress goes to stderr; results to ``benchmarks/results/mujoco_fit.{json,md}``.
 
 Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--seeds 101,102,103]
-[--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint]``.
+[--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint,soft_elliptic] [--name STEM]``
+(``results/mujoco_fit.md``: all five configurations with the compliant and pyramid laws, as run
+before the elliptic law existed; ``results/mujoco_fit_elliptic.md``: the two elliptic
+configurations with all three laws).
 """
 from __future__ import annotations
 

@@ -1,11 +1,13 @@
 """Choosing the contact law on held-out runs: fit each law, keep the one that predicts best.
 
 A robot's ground contact differs from any model in structure, not only in parameter values
-(``docs/model.md``). The simulator offers two contact laws (``ModelParameters.contact_law``): the
+(``docs/model.md``). The simulator offers three contact laws (``ModelParameters.contact_law``): the
 compliant ground (a spring-damper normal force with the paper's Coulomb/Stribeck friction on it)
 and the soft-constraint law (a contact is a constraint whose approach, penetration and slip relax
-with a time constant, friction on a pyramid's edges, all contacts solved together: MuJoCo's).
-No parameter of one law reproduces the other (``benchmarks/results/contact_law.md``), so the
+with a time constant, all contacts solved together: MuJoCo's) with friction on a pyramid's edges
+(``soft_constraint``, MuJoCo's default) or in an elliptic cone (``soft_elliptic``). No parameter
+of one law reproduces another (``benchmarks/results/contact_law.md``; a diamond-shaped friction
+limit is not a round one), so the
 choice is between models, made the way such choices are: each law is fitted on the training
 runs with its own ground parameters free (:data:`LAW_FREE`), and the law whose fit has the lower
 cost on runs the fits did not see is kept.
