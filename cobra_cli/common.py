@@ -86,7 +86,7 @@ def _contact_value(text: str) -> str:
     try:
         chosen_laws(text)
     except InputError as exc:
-        raise argparse.ArgumentTypeError(str(exc)) from None
+        raise argparse.ArgumentTypeError(str(exc).removeprefix("--contact ")) from None  # argparse names it
     return text
 
 
@@ -125,7 +125,8 @@ def law_starts(path: str | Path | None, contact_law: str | None, free: str | Non
 
 def add_contact_option(p: argparse.ArgumentParser, what: str, choose: str = "") -> None:
     """``--contact LAW``: the contact law to {what} with, overriding the parameter file's; with
-    ``choose`` (what choosing does, for the help), also ``--contact choose``."""
+    ``choose`` (what choosing does, for the help), also ``--contact choose`` (every law) and a
+    comma-separated list of laws to choose among (:func:`chosen_laws`)."""
     laws = ("'compliant' (spring-damper ground, Stribeck friction), 'soft_constraint' (MuJoCo's default: a soft "
             "constraint on the friction pyramid, time constant from the parameter contact_time_constant) or "
             "'soft_elliptic' (the same on MuJoCo's elliptic friction cone)")

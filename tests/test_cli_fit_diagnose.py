@@ -262,8 +262,8 @@ def test_an_unknown_law_in_a_list_to_choose_among_is_named(soft_data, tmp_path, 
         main([command, *map(str, train), "--holdout", str(hold), "--contact", "compliant,rigid",
               "--out", str(tmp_path / "never")])
     assert exc.value.code == 2 and not (tmp_path / "never").exists()
-    assert ("--contact 'compliant,rigid': expected one of compliant, soft_constraint, soft_elliptic, 'choose'"
-            in capsys.readouterr().err)
+    assert ("argument --contact: 'compliant,rigid': expected one of compliant, soft_constraint, soft_elliptic, "
+            "'choose'" in capsys.readouterr().err)
 
 
 def test_check_and_diagnose_judge_the_parameters_of_the_law(soft_data, tmp_path, capsys):
