@@ -878,6 +878,19 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, mu1, mu2, tc, f, a_out)
 
 
 @njit(cache=True)
+def _store_warm(X, f, per, warm):
+    """Each feature's forces (``per`` per touching point, in feature order) into ``warm`` (nf, 4),
+    zeros for the features not touching (``X[k, 2] >= 0``)."""
+    row = 0
+    for k in range(X.shape[0]):
+        warm[k, :] = 0.0
+        if X[k, 2] < 0.0:
+            for e in range(per):
+                warm[k, e] = f[row + e]
+            row += per
+
+
+@njit(cache=True)
 def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body, X, kin_R, kin_v,
                               ground, elliptic, warm, a_out):
     """Accelerations (nv,) under the soft-constraint contact law, MuJoCo's (condim 3), on the
@@ -947,23 +960,18 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
     if m == 0:
         warm[:, :] = 0.0
         return 0
+    per = 3 if elliptic else 4
+    f = np.empty(m)
+    row = 0
+    for k in range(X.shape[0]):       # the last step's forces of the points touching now
+        if X[k, 2] < 0.0:
+            for e in range(per):
+                f[row + e] = warm[k, e]
+            row += per
     if elliptic:
-        f = np.empty(m)
-        row = 0
-        for k in range(X.shape[0]):
-            if X[k, 2] < 0.0:
-                for e in range(3):
-                    f[row + e] = warm[k, e]
-                row += 3
         iterations = elliptic_contact_acceleration(D, a_out.copy(), v, rows, depth, mu1, mu1 * ground[G_LATERAL],
                                                    tc, f, a_out)
-        row = 0
-        for k in range(X.shape[0]):
-            warm[k, :] = 0.0
-            if X[k, 2] < 0.0:
-                for e in range(3):
-                    warm[k, e] = f[row + e]
-                row += 3
+        _store_warm(X, f, per, warm)
         return iterations
     W = rows @ D                      # (m, nv): rows D^-1, D^-1 symmetric
     A = W @ rows.T
@@ -982,23 +990,8 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
                 jv += rows[j, col] * v[col]
                 ja += rows[j, col] * a_out[col]
             rhs[j] = -bcoef * jv - kcoef * d * depth[j] - ja
-    f = np.zeros(m)
-    row = 0
-    for k in range(X.shape[0]):
-        if X[k, 2] < 0.0:
-            for e in range(4):
-                f[row + e] = warm[k, e]
-            row += 4
     iterations = nonnegative_qp(A, rhs, f)
-    row = 0
-    for k in range(X.shape[0]):
-        if X[k, 2] < 0.0:
-            for e in range(4):
-                warm[k, e] = f[row + e]
-            row += 4
-        else:
-            for e in range(4):
-                warm[k, e] = 0.0
+    _store_warm(X, f, per, warm)
     for col in range(nv):
         acc = 0.0
         for j in range(m):
