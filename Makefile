@@ -20,10 +20,8 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/cobra demo --force  # refreshes its own plots in out/demo
 
-# Both cores: two pytest workers (pytest-xdist), each test file on one of them so that a file's
-# module fixtures (the MuJoCo recordings and fits) are made once.
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	$(PY) -m pytest -q
 
 # Every benchmark, one after another (never two at once: they time themselves). Hours in all:
 # the MuJoCo fits and the diagnosis accuracy dominate. Each writes its table to benchmarks/results/.
