@@ -330,7 +330,8 @@ def main(argv: list[str] | None = None) -> int:
               f"seed {r['seed']}: named {r['named'] or 'none'}", file=sys.stderr, flush=True)
         meta = {"engines": engines, "effects": effects, "magnitudes": levels, "seeds": seeds,
                 "dev_seeds": list(DEV_SEEDS), "nulls": args.nulls, "pairs": args.pairs, "duration_s": args.duration,
-                "mujoco_contact_law": law, "executor": args.executor,
+                "mujoco_contact_law": law, "mujoco_contact_laws": list(CONTACT_LAWS) if law == "choose" else [law],
+                "executor": args.executor,
                 "summary": [summary(rows, e) for e in engines]}
         write_results(name, rows, meta, markdown(rows, engines, seeds, law))
     executor.close()

@@ -72,7 +72,9 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
         law = doc["meta"].get("mujoco_contact_law", "compliant")
         where = "on this simulator's runs" if s["engine"] == "sim" else "on MuJoCo's runs"
         if s["engine"] == "mujoco" and law != "compliant":
-            where += (", each diagnosis choosing its contact law" if law == "choose"
+            # a file written before the elliptic law existed chose between the first two laws
+            among = doc["meta"].get("mujoco_contact_laws", ["compliant", "soft_constraint"])
+            where += (f", each diagnosis choosing its contact law among {', '.join(among)}" if law == "choose"
                       else f", diagnosed under the {law.replace('_', '-')} law")
         out.append((f"missing effect named first, {where} (seeds {', '.join(map(str, doc['meta']['seeds']))})",
                     f"{_pct(s['named_first_rate'])} ({', '.join(levels)}); {_pct(s['false_positive_rate'])} "
