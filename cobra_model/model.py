@@ -302,6 +302,31 @@ class RobotModel:
         M = pin.crba(self.pin_model, data, q)
         return np.triu(M) + np.triu(M, 1).T
 
+    @cached_property
+    def reference_weights(self) -> np.ndarray:
+        """Each body's translational inverse inertia at the reference pose [1/kg] (one per
+        Pinocchio joint after the universe, the root body first): ``trace(J_c D^-1 J_c^T) / 3``
+        with ``J_c`` the linear Jacobian of the body's centre of mass and ``D`` the mass matrix,
+        transmission inertia included, in the neutral configuration (joints at zero).
+
+        The soft-constraint contact laws scale each contact's compliance by its body's weight
+        (:func:`integrators.kernels.soft_contact_acceleration`): MuJoCo's ``body_invweight0``,
+        which it computes the same way in its reference configuration.
+        """
+        m = self.pin_model
+        data = m.createData()
+        q = pin.neutral(m)
+        pin.computeJointJacobians(m, data, q)
+        D = pin.computeMinverse(m, data, q)
+        D = np.triu(D) + np.triu(D, 1).T
+        weights = np.empty(m.njoints - 1)
+        for j in range(1, m.njoints):
+            J = pin.getJointJacobian(m, data, j, pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
+            lever = data.oMi[j].rotation @ m.inertias[j].lever
+            Jc = J[:3] - pin.skew(lever) @ J[3:]
+            weights[j - 1] = np.trace(Jc @ D @ Jc.T) / 3.0
+        return weights
+
     def bias(self, q: np.ndarray, v: np.ndarray) -> np.ndarray:
         """Coriolis, centrifugal and gravity terms H(q, v) (nv,) [N, N m]."""
         data = self.pin_model.createData()

@@ -128,6 +128,7 @@ class BatchSimulator:
             NLE = np.empty((nv, n), order="F")
             ZERO = np.zeros((nv, n), order="F")
             WARM = np.zeros((n, len(self.model.features), 4))
+            WEIGHT = np.ascontiguousarray(np.stack([self.sims[e].model.reference_weights for e in slots]))
         sub = s.substeps
         every = record_every if record_every > 0 else max(n_steps, 1)
         n_rec = n_steps // every + 1
@@ -154,7 +155,7 @@ class BatchSimulator:
                         MINV[e] = pin.computeMinverse(pm, data, Q[e])
                 K.batch_soft_contact_acceleration(V, TAU, MINV, NLE.T, self.model.chain.floating, f._chain_i[:, 0],
                                                   f._chain_i[:, 2], f._feat_i[:, 0], X, KR, KV, ground,
-                                                  K.SOFT_LAWS[self._first.contact_law], WARM, A.T)
+                                                  K.SOFT_LAWS[self._first.contact_law], WEIGHT, WARM, A.T)
             else:
                 for a, b, pool in self._groups:
                     pin.abaInParallel(self.threads, pool, Q[a:b].T, V[a:b].T, TAU[a:b].T, A[:, a:b])

@@ -751,7 +751,7 @@ def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Hc):
 
 
 @njit(cache=True)
-def elliptic_contact_acceleration(D, a0, v, rows, depth, mu1, mu2, tc, f, a_out):
+def elliptic_contact_acceleration(D, a0, v, rows, depth, weight, mu1, mu2, tc, f, a_out):
     """Accelerations (nv,) under MuJoCo's soft constraint on the elliptic friction cone
     (condim 3, ``cone="elliptic"``, ``impratio`` 1), by Newton's method on its primal problem.
 
@@ -759,13 +759,13 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, mu1, mu2, tc, f, a_out)
     (:func:`soft_contact_rows` with ``elliptic``) inside the cone ``|(f_1 / mu1, f_2 / mu2)| <= f_n``;
     together they minimise ``f (A + R) f / 2 - f (a_ref - J a0)``, ``A = J D^-1 J^T``, with
 
-        R_n = R_1 = (1 - d) / d a_n,  R_2 = R_1 mu1^2 / mu2^2,  a_n = J_n D^-1 J_n^T,
+        R_n = R_1 = (1 - d) / d w,  R_2 = R_1 mu1^2 / mu2^2,
         a_ref,n = -b J_n v - k d r,   a_ref,t = -b J_t v,   b = 2 / (d_max tc),  k = 1 / (d_max^2 tc^2 zeta^2),
 
     MuJoCo's regulariser and reference acceleration on this cone (the friction rows carry no
-    position term; their ``R`` makes the cone circular in the coordinates ``R^(1/2) f``); ``a_n``
-    is taken from the current pose, as :func:`soft_contact_acceleration` does for the pyramid
-    (MuJoCo's ``diagApprox``: the body's weight at the reference pose). The same problem in
+    position term; their ``R`` makes the cone circular in the coordinates ``R^(1/2) f``), ``w``
+    the contact's body's weight at the reference pose (MuJoCo's ``diagApprox``; see
+    :func:`soft_contact_acceleration`). The same problem in
     accelerations ``a`` (MuJoCo's primal form): minimise
     ``(a - a0) M (a - a0) / 2 + sum |P(-R^(-1/2) (J a - a_ref))|^2 / 2`` over the contacts, ``P``
     the projection onto that circular cone (:func:`cone_projection`); its gradient is
@@ -778,6 +778,7 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, mu1, mu2, tc, f, a_out)
         a0: acceleration without contact (nv,).
         v: velocity (nv,).
         rows, depth: :func:`soft_contact_rows` (elliptic).
+        weight: (n,) each touching point's body weight ``w`` [1/kg].
         mu1, mu2: friction along the body and sideways [1]; tc: time constant [s].
         f: (3 n,) the last step's forces [N] on entry (the start), this step's on return.
         a_out: output (nv,).
@@ -795,10 +796,7 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, mu1, mu2, tc, f, a_out)
     aref = np.empty(m)
     for r0 in range(0, m, 3):
         d = soft_impedance(depth[r0])
-        a_n = 0.0
-        for col in range(nv):
-            a_n += W[r0, col] * rows[r0, col]
-        s_n = np.sqrt((1.0 - d) / d * a_n)
+        s_n = np.sqrt((1.0 - d) / d * weight[r0 // 3])
         sR[r0], sR[r0 + 1], sR[r0 + 2] = s_n, s_n, s_n * mu1 / mu2
         for e in range(3):
             jv = 0.0
@@ -892,7 +890,7 @@ def _store_warm(X, f, per, warm):
 
 @njit(cache=True)
 def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body, X, kin_R, kin_v,
-                              ground, elliptic, warm, a_out):
+                              ground, elliptic, body_weight, warm, a_out):
     """Accelerations (nv,) under the soft-constraint contact law, MuJoCo's (condim 3), on the
     friction pyramid or, with ``elliptic``, on the elliptic cone
     (:func:`elliptic_contact_acceleration`; the rest of this docstring is the pyramid's).
@@ -903,18 +901,23 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
     the ground, ``t2 = z x t1``, as in :func:`ground_forces`), each carrying a force ``f >= 0``
     that solves, for all rows together,
 
-        (A + R) f = a_ref - J a0,  A = J D^-1 J^T,  R = 2 mu1^2 (1 - d) / d a_c  (each edge of a contact),
+        (A + R) f = a_ref - J a0,  A = J D^-1 J^T,  R = 2 mu1^2 (1 - d) / d (1 + mu1^2) w  (each edge of a contact),
         a_ref = -b J v - k d r,    b = 2 / (d_max tc),  k = 1 / (d_max^2 tc^2 zeta^2),
 
     with ``a0 = D^-1 (tau - nle)`` the acceleration without contact, ``r`` the depth [m],
-    ``d(r)`` :func:`soft_impedance` and ``a_c = J_n D^-1 J_n^T + mu1^2 J_t1 D^-1 J_t1^T`` (the
-    mean diagonal of the contact's two along-body edges): a contact is a constraint whose
+    ``d(r)`` :func:`soft_impedance` and ``w`` the weight of the contact's body, its mean
+    translational inverse inertia at the reference pose
+    (:attr:`cobra_model.model.RobotModel.reference_weights`): a contact is a constraint whose
     violation (approach speed, penetration, and slip along the pyramid's edges) relaxes with the
-    time constant ``tc`` [s], weighted by the robot's inertia at every contact at once. ``R`` is
-    MuJoCo's pyramidal regulariser (``mj_makeImpedance``): one value for all four edges,
-    ``2 mu^2`` times the normal's, which matches the elliptic cone's friction impedance; MuJoCo
-    takes ``a_c`` from the bodies' weights at the reference pose (``diagApprox``), this law
-    from the current pose. Per-edge ``(1 - d) / d diag(A)``, the earlier form, made the pyramid
+    time constant ``tc`` [s]. ``R`` is MuJoCo's pyramidal regulariser (``mj_makeImpedance``): one
+    value for all four edges, ``2 mu^2`` times the first edge's ``(1 - d) / d diagApprox``, with
+    ``diagApprox = (1 + mu^2) w`` from the body's weight at the reference pose, as MuJoCo's
+    ``body_invweight0``. So ``R``, the contact's compliance in force units, is a property of the
+    contact and its body, not of the robot's pose: taken from the current pose
+    (``J D^-1 J^T``, this law's earlier form) it changed as the chain bent, and MuJoCo's runs
+    were followed about half as well (joint RMSE over 6 s at MuJoCo's values: 0.30 -> 0.20
+    mrad at 0.35 Hz, 0.43 -> 0.39 mrad at 0.65 Hz; elliptic cone 0.44 -> 0.23 and
+    0.69 -> 0.61 mrad). Per-edge ``(1 - d) / d diag(A)``, the form before that, made the pyramid
     ``1 / (2 mu^2)`` (9 at ``mu = 0.24``) times softer than MuJoCo's: fitted to MuJoCo's runs it
     left a residual that a lateral/along friction ratio of 0.87 mimicked, named on every
     MuJoCo-made null.
@@ -932,6 +935,7 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
         ground: the ground parameters: ``mu1 = G_MU_C`` along the body, ``mu2 = mu1 G_LATERAL``
             sideways [1], the time constant ``tc = G_TC`` [s] (the others are unused).
         elliptic: the elliptic cone instead of the pyramid.
+        body_weight: (n_bodies,) each body's weight ``w`` at the reference pose [1/kg].
         warm: (nf, 4) each feature's edge forces [N] of the last step (on the elliptic cone its
             normal and two friction forces in the first three columns), the solver's start;
             overwritten with this step's (zero where not touching).
@@ -962,15 +966,17 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
         return 0
     per = 3 if elliptic else 4
     f = np.empty(m)
+    weight = np.empty(m // per)
     row = 0
     for k in range(X.shape[0]):       # the last step's forces of the points touching now
         if X[k, 2] < 0.0:
             for e in range(per):
                 f[row + e] = warm[k, e]
+            weight[row // per] = body_weight[f_body[k]]
             row += per
     if elliptic:
-        iterations = elliptic_contact_acceleration(D, a_out.copy(), v, rows, depth, mu1, mu1 * ground[G_LATERAL],
-                                                   tc, f, a_out)
+        iterations = elliptic_contact_acceleration(D, a_out.copy(), v, rows, depth, weight, mu1,
+                                                   mu1 * ground[G_LATERAL], tc, f, a_out)
         _store_warm(X, f, per, warm)
         return iterations
     W = rows @ D                      # (m, nv): rows D^-1, D^-1 symmetric
@@ -981,7 +987,7 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
     rhs = np.empty(m)
     for r0 in range(0, m, 4):         # one contact: its four edges share the depth and impedance
         d = soft_impedance(depth[r0])
-        reg = 2.0 * mu1 * mu1 * (1.0 - d) / d * 0.5 * (A[r0, r0] + A[r0 + 1, r0 + 1])
+        reg = 2.0 * mu1 * mu1 * (1.0 - d) / d * (1.0 + mu1 * mu1) * weight[r0 // 4]
         for j in range(r0, r0 + 4):
             A[j, j] += reg
             jv = 0.0
@@ -1026,8 +1032,8 @@ def batch_post_step(Q, V, A, scal, floating, Q_out, V_out, status):
 
 @njit(cache=True, parallel=True)
 def batch_soft_contact_acceleration(V, TAU, MINV, NLE, floating, parents, vidx, f_body, X, KR, KV, ground, elliptic,
-                                    WARM, A):
+                                    WEIGHT, WARM, A):
     """:func:`soft_contact_acceleration` for every environment ``e`` of a batch (rows)."""
     for e in prange(V.shape[0]):
         soft_contact_acceleration(V[e], TAU[e], MINV[e], NLE[e], floating, parents, vidx, f_body, X[e], KR[e], KV[e],
-                                  ground[e], elliptic, WARM[e], A[e])
+                                  ground[e], elliptic, WEIGHT[e], WARM[e], A[e])

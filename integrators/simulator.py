@@ -441,7 +441,7 @@ class Simulator:
         K.soft_contact_acceleration(v, tau, pin.computeMinverse(model, data, q), pin.nonLinearEffects(model, data, q, v),
                                     self.model.chain.floating, self._chain_i[:, 0], self._chain_i[:, 2],
                                     self._feat_i[:, 0], self._X, self._kin_R, self._kin_v, self.ground,
-                                    K.SOFT_LAWS[self.contact_law], self._soft_warm, a)
+                                    K.SOFT_LAWS[self.contact_law], self.model.reference_weights, self._soft_warm, a)
         return a
 
     def _momentum_step(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray,
