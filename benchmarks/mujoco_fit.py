@@ -39,14 +39,23 @@ interval of a parameter of the chosen fit with a MuJoCo counterpart holds the Mu
 (``joint_damping``: joint ``damping``; ``mu_c``: sliding friction; ``contact_time_constant``:
 ``solref[0]``, for the soft-constraint law).
 
-Seeds 7 and 5 (heading 0.3 rad; twin and stiff) were used while developing; the table reports seeds 101-103.
+With ``--channel-weights residual`` the chosen law is then fitted again with each channel (head,
+joints) weighted by its RMS residual after the first fit, never below its sensor's noise
+(feasible weighted least squares, :func:`sysid.identification.lsq.refit_by_residual`); the
+table gives the held-out figures before that refit ("fixed weights") and after it.
+
+Seeds 7 and 5 (heading 0.3 rad; twin and stiff, and elliptic_soft for the residual weights)
+were used while developing; the table reports seeds 101-103.
 Progress goes to stderr; results to ``benchmarks/results/mujoco_fit.{json,md}``.
 
 Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--seeds 101,102,103]
-[--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint,soft_elliptic] [--name STEM]``
-(``results/mujoco_fit.md``: all five configurations with the compliant and pyramid laws, as run
-before the elliptic law existed; ``results/mujoco_fit_elliptic.md``: the two elliptic
-configurations with all three laws).
+[--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint,soft_elliptic]
+[--channel-weights fixed|residual] [--name STEM]`` (``results/mujoco_fit.md``: all five
+configurations with the compliant and pyramid laws, as run before the elliptic law existed and
+before the soft laws took their bodies' weights at the reference pose;
+``results/mujoco_fit_elliptic.md``: the two elliptic configurations with all three laws, also
+before that; ``results/mujoco_fit_residual.md``: twin and elliptic_soft, all three laws, with
+the residual weights, after it).
 """
 from __future__ import annotations
 
@@ -67,7 +76,8 @@ from integrators.simulate import simulate_like
 from cobra_model.servo import PULSES_PER_REV
 from sysid.generators.dataset import RunPlan
 from sysid.identification.contact_choice import LAW_FREE, choose_contact_law
-from sysid.identification.lsq import fit_lsq
+from sysid.identification.lsq import fit_lsq, refit_by_residual
+from sysid.identification.objective import Objective
 from sysid.gap.metrics import compare_runs
 from sysid.generators.mujoco_recording import describe, record_mujoco, stiff_contact, twin_options
 
@@ -134,11 +144,17 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
     progress("recording 9 MuJoCo runs")
     train, hold = record_case(options, truth, seed, heading, args.train_duration, args.holdout_duration, model)
     valid = record_validation(options, truth, seed, heading, args.train_duration, model)
-    choice = choose_contact_law(
-        train, valid, start, laws=laws, progress=progress,
-        fit=lambda objective: fit_lsq(objective, max_iterations=args.iterations, budget_seconds=args.budget,
-                                      progress=lambda i, c, s: progress(f"  iteration {i}: cost {c:.4g} ({s:.0f} s)")))
-    best = choice.best.fit
+    def fit(objective: Objective):
+        return fit_lsq(objective, max_iterations=args.iterations, budget_seconds=args.budget,
+                       progress=lambda i, c, s: progress(f"  iteration {i}: cost {c:.4g} ({s:.0f} s)"))
+
+    choice = choose_contact_law(train, valid, start, laws=laws, progress=progress, fit=fit)
+    first = best = choice.best.fit
+    if args.channel_weights == "residual":
+        best = refit_by_residual(Objective(train, first.params), first, fit)
+        scales = best.extra["channel_scales"]
+        progress(f"refitted {choice.chosen} with channel scales head {scales['head_scale_m'] * 1e3:.2f} mm, joints "
+                 f"{scales['joint_scale_rad'] * 1e3:.3f} mrad: cost {best.cost:.4g}")
     counterpart = mujoco_truth(options)
     intervals = {r.name: {"value": r.value, "ci": [r.ci_low, r.ci_high], "truth": counterpart[r.name],
                           "holds": bool(r.ci_low <= counterpart[r.name] <= r.ci_high)}
@@ -148,7 +164,8 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
         before = compare_runs(run, simulate_like(run, params=start))
         per_law = {f.law: compare_runs(run, simulate_like(run, params=f.fit.params))
                    for f in choice.fits}
-        after = per_law[choice.chosen]
+        fixed = per_law[choice.chosen]
+        after = fixed if best is first else compare_runs(run, simulate_like(run, params=best.params))
         joint = after.mean_joint_rmse
         rows.append({
             "config": config, "seed": seed, "heading_rad": heading, "gait_hz": run.gait_frequency_hz,
@@ -157,10 +174,12 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
             "joint_rmse_rad_by_law": {law: gap.mean_joint_rmse for law, gap in per_law.items()},
             "chosen_law": choice.chosen, "head_final_m_fitted": after.head.final, "joint_rmse_rad_fitted": joint,
             "joint_rmse_over_floor": joint / JOINT_FLOOR_RAD,
+            "head_final_m_fixed_weights": fixed.head.final, "joint_rmse_rad_fixed_weights": fixed.mean_joint_rmse,
+            "channel_scales": best.extra.get("channel_scales"),
             "meets_head_bound": bool(after.head.final <= HEAD_BOUND_M),
             "meets_joint_bound": bool(joint <= JOINT_BOUND_FACTOR * JOINT_FLOOR_RAD),
             "choice": choice.to_json(), "fit_status": best.status.value,
-            "fit_seconds": sum(f.seconds for f in choice.fits),
+            "fit_seconds": sum(f.seconds for f in choice.fits) + (best.seconds - first.seconds),
             "at_bound": [r.name for r in best.report if r.at_bound], "intervals": intervals,
             "fitted": {n: best.params.value(n) for n in best.params.free_names},
         })
@@ -170,6 +189,9 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
 def markdown(rows: list[dict], meta: dict) -> str:
     """The per-gait table, the pass counts and the interval coverage."""
     starts = [s for s, _ in rows[0]["choice"]["fits"][0]["train_cost_by_rounding_start"]]
+    residual = meta["channel_weights"] == "residual"
+    refit = ("; the chosen law then refitted with each channel weighted by its RMS residual (feasible weighted "
+             "least squares; the 'fixed weights' columns give the chosen fit before that)") if residual else ""
     lines = ["# Base fit on MuJoCo-made runs (no effect added)", "",
              f"{meta['cases_done']} of {meta['cases']} cases (configuration x seed x heading) measured. "
              f"Seeds {meta['seeds']} (development seed {list(DEV_SEEDS)} not reported), headings "
@@ -178,23 +200,30 @@ def markdown(rows: list[dict], meta: dict) -> str:
              f"{meta['iterations_per_stage']} Jacobians per stage at most; each contact law fitted with its "
              f"own free parameters ({'; '.join(f'{law}: ' + ', '.join(free) for law, free in meta['free'].items())}) "
              f"from contact_rounding {', '.join(f'{s:g}' for s in starts)} m (the lowest training cost kept), "
-             "the law with the lower cost on three validation runs chosen. Bounds: held-out final head error "
+             f"the law with the lower cost on three validation runs chosen{refit}. Bounds: held-out final head error "
              f"<= {HEAD_BOUND_M * 100:g} cm, joint RMSE <= {JOINT_BOUND_FACTOR:g} x floor "
              f"({JOINT_FLOOR_RAD * 1e3:.3f} mrad).", "",
              "| config | seed | heading [rad] | gait [Hz] | head final: nominal [m] | "
              + " | ".join(f"{law} fitted [m]" for law in meta["laws"])
-             + " | chosen | joint RMSE chosen [mrad] (x floor) | fits [s] | at a bound (chosen) |",
-             "|---|---:|---:|---:|---:|" + "---:|" * len(meta["laws"]) + "---|---|---:|---|"]
+             + " | chosen | " + ("fixed weights: head [m], joint RMSE [mrad] | head final [m] | " if residual else "")
+             + "joint RMSE chosen [mrad] (x floor) | fits [s] | at a bound (chosen) |",
+             "|---|---:|---:|---:|---:|" + "---:|" * len(meta["laws"]) + "---|" + ("---|---:|" if residual else "")
+             + "---|---:|---|"]
     for r in rows:
         lines.append(f"| {r['config']} | {r['seed']} | {r['heading_rad']:g} | {r['gait_hz']:g} | "
                      f"{r['head_final_m_nominal']:.3f} | "
                      + " | ".join(f"{r['head_final_m_by_law'][law]:.3f}" for law in meta["laws"])
-                     + f" | {r['chosen_law']} | {r['joint_rmse_rad_fitted'] * 1e3:.2f} ({r['joint_rmse_over_floor']:.1f}) | "
+                     + f" | {r['chosen_law']} | "
+                     + (f"{r['head_final_m_fixed_weights']:.3f}, {r['joint_rmse_rad_fixed_weights'] * 1e3:.2f} | "
+                        f"{r['head_final_m_fitted']:.3f} | " if residual else "")
+                     + f"{r['joint_rmse_rad_fitted'] * 1e3:.2f} ({r['joint_rmse_over_floor']:.1f}) | "
                      f"{r['fit_seconds']:.0f} | {', '.join(r['at_bound']) or '-'} |")
     lines += ["", "| config | gaits within 5 cm (chosen) | "
               + " | ".join(f"within 5 cm ({law} always)" for law in meta["laws"])
-              + " | law chosen | joint RMSE within bound | median head final, chosen [m] | worst [m] |",
-              "|---|---|" + "---|" * len(meta["laws"]) + "---|---|---:|---:|"]
+              + " | law chosen | joint RMSE within bound | "
+              + ("fixed weights: within 5 cm, joints within bound | " if residual else "")
+              + "median head final, chosen [m] | worst [m] |",
+              "|---|---|" + "---|" * len(meta["laws"]) + "---|---|" + ("---|" if residual else "") + "---:|---:|"]
     for config in dict.fromkeys(r["config"] for r in rows):
         sub = [r for r in rows if r["config"] == config]
         heads = [r["head_final_m_fitted"] for r in sub]
@@ -203,7 +232,10 @@ def markdown(rows: list[dict], meta: dict) -> str:
                            for law in meta["laws"])
         lines.append(f"| {config} | {sum(r['meets_head_bound'] for r in sub)}/{len(sub)} | " + " | ".join(by_law)
                      + f" | {chosen} | {sum(r['meets_joint_bound'] for r in sub)}/{len(sub)} | "
-                     f"{np.median(heads):.3f} | {max(heads):.3f} |")
+                     + (f"{sum(r['head_final_m_fixed_weights'] <= HEAD_BOUND_M for r in sub)}/{len(sub)}, "
+                        f"{sum(r['joint_rmse_rad_fixed_weights'] <= JOINT_BOUND_FACTOR * JOINT_FLOOR_RAD for r in sub)}"
+                        f"/{len(sub)} | " if residual else "")
+                     + f"{np.median(heads):.3f} | {max(heads):.3f} |")
     fits = {(r["config"], r["seed"], r["heading_rad"]): r["intervals"] for r in rows}
     names = sorted({n for iv in fits.values() for n in iv})
     lines += ["", "95 % interval coverage of the MuJoCo value, over the fits:", "",
@@ -232,6 +264,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--budget", type=float, default=None,
                         help="wall-time budget per fit [s] (default none: a budget makes the result depend on the "
                              "machine's load)")
+    parser.add_argument("--channel-weights", choices=("fixed", "residual"), default="fixed",
+                        help="fixed: the objective's documented channel scales (default); residual: then refit the "
+                             "chosen law with each channel weighted by its RMS residual (feasible weighted least "
+                             "squares), reporting both")
     parser.add_argument("--name", default="mujoco_fit", help="results file stem (default mujoco_fit)")
     args = parser.parse_args(argv)
     chosen = [c.strip() for c in args.configs.split(",") if c.strip()]
@@ -256,6 +292,7 @@ def main(argv: list[str] | None = None) -> int:
                 "holdout_duration_s": args.holdout_duration, "laws": laws, "free": {law: list(LAW_FREE[law]) for law in laws},
                 "truth": TRUTH, "validation_turn_rad": VALIDATION_TURN_RAD,
                 "iterations_per_stage": args.iterations, "budget_s": args.budget,
+                "channel_weights": args.channel_weights,
                 "joint_floor_rad": JOINT_FLOOR_RAD, "head_bound_m": HEAD_BOUND_M,
                 "joint_bound_factor": JOINT_BOUND_FACTOR, "cases_done": len(rows) // len(GAITS_HZ),
                 "cases": len(cases), "wall_s": time.perf_counter() - t_all}

@@ -47,6 +47,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--current", action="store_true",
                    help="least squares: also fit the measured motor currents (current_* columns in every run); "
                         "the table then shows each interval without them too")
+    p.add_argument("--channel-weights", choices=("fixed", "residual"), default="fixed",
+                   help="least squares: fixed (default) weighs 1 cm of head error as 0.01 rad of joint error; "
+                        "residual then refits with each channel weighted by its RMS residual (feasible weighted "
+                        "least squares: when the model's structure differs from the data's, above all the "
+                        "ground, the head path's unexplained error no longer pulls the actuator values)")
     p.add_argument("--no-check", action="store_true", help="skip the data check before fitting (gaps, "
                    "dropouts, saturated joints, parameters the runs cannot pin down, which it freezes)")
     p.set_defaults(func=run)
@@ -78,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
     choosing = chosen_laws(args.contact) is not None
     if choosing and args.method != "lsq":
         raise InputError(f"--contact {args.contact}: only least squares fits each contact law (--method lsq)")
+    if args.channel_weights != "fixed" and args.method != "lsq":
+        raise InputError(f"--channel-weights {args.channel_weights}: only least squares refits with new channel "
+                         "weights (--method lsq)")
     if args.current and args.method != "lsq":
         raise InputError("--current: only least squares fits the motor current (--method lsq)")
     if args.method == "ppo" and (args.envs < 1 or args.timesteps < 1):
@@ -116,8 +124,8 @@ def run(args: argparse.Namespace) -> int:
         from sysid.identification.contact_choice import choose_contact_law, fit_from_shapes, shape_starts
         from sysid.identification.lsq import fit_lsq
         # contact_rounding free: one fit from each shape of the module ends, the lowest cost kept;
-        # the budget is shared by every fit (each shape, each law)
-        fits = sum(max(1, len(shape_starts(p))) for p in starts.values())
+        # the budget is shared by every fit (each shape, each law, the refit)
+        fits = sum(max(1, len(shape_starts(p))) for p in starts.values()) + (args.channel_weights == "residual")
         budget = args.budget_seconds / fits if args.budget_seconds is not None else None
 
         def lsq(o: Objective) -> FitResult:
@@ -138,6 +146,12 @@ def run(args: argparse.Namespace) -> int:
         if len(shapes_starts) > 1:
             print("training cost from each starting contact_rounding: "
                   + ", ".join(f"{r0:g} m -> {cost:.4g}" for r0, cost in shapes_starts))
+        if args.channel_weights == "residual":
+            from sysid.identification.lsq import refit_by_residual
+            result = refit_by_residual(Objective(train, result.params, weights, executor=executor), result, lsq)
+            scales = result.extra["channel_scales"]
+            print(f"refitted with each channel weighted by its RMS residual: head {scales['head_scale_m'] * 1e3:.3g} mm, "
+                  f"joints {scales['joint_scale_rad'] * 1e3:.3g} mrad (cost in these units)")
     else:
         from sysid.identification.ppo import fit_ppo
         curve = report_dir / "reward_curve.png" if report_dir else None

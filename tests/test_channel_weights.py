@@ -1,4 +1,6 @@
-"""How the discrepancy workflow weights the head path against the joints (sysid.discrepancy.diagnose.balanced_weights).
+"""How the head path is weighted against the joints: the discrepancy workflow's
+(sysid.discrepancy.diagnose.balanced_weights) and feasible weighted least squares'
+(Objective.residual_weights).
 
 Two 2 s runs made by this simulator at the parameters the objective is evaluated at: what is left
 is the sensors' noise (quantised encoders, mocap noise), far below the default scales, so the
@@ -34,13 +36,9 @@ def runs() -> list:
 
 def channel_costs(runs: list, weights: Weights) -> tuple[float, float, float]:
     """Summed cost of the head channel and of the joint channel, and the head's RMS residual [m]."""
-    objective = Objective(runs, PARAMS, weights)
-    r = objective.residuals(PARAMS.as_vector()[None])[0]
-    gaps = objective.head_gaps()
-    head = np.concatenate([b[:, :2].ravel() for b in objective.residual_blocks()])
-    head = head[~gaps[head]]
-    joints = np.concatenate([b[:, 2:].ravel() for b in objective.residual_blocks()])
-    return float(r[head] @ r[head]), float(r[joints] @ r[joints]), float(np.sqrt(np.mean(r[head] ** 2))) * weights.head_scale_m
+    channels = Objective(runs, PARAMS, weights).channel_residuals(PARAMS.as_vector())
+    head, joints = channels["head"], channels["joints"]
+    return float(head @ head), float(joints @ joints), float(np.sqrt(np.mean(head ** 2))) * weights.head_scale_m
 
 
 def drifted(run, drift_m: float):
@@ -82,3 +80,27 @@ def test_runs_without_a_head_measurement_keep_the_weights(runs):
     blind = [dataclasses.replace(r, head_pos=np.full_like(r.head_pos, np.nan), head_quat=np.full_like(r.head_quat, np.nan))
              for r in runs]
     assert balanced_weights(Objective(blind, PARAMS), PARAMS.as_vector()) == Weights()
+
+
+def test_residual_weights_at_the_truth_are_the_sensors_noise(runs):
+    """At the parameters that made the runs the model leaves only noise: the head's scale is the
+    motion capture's 0.5 mm per axis (measured 0.48-0.57 mm on seeds 5-7), the joints' the
+    encoders' rounding, 2 pi / 4096 / sqrt 12 = 0.44 mrad (measured 0.41-0.42). Bounds: a third
+    either way for the head (80 residuals, the start pose's noise on top), a quarter for the joints
+    (440 residuals)."""
+    w = Objective(runs, PARAMS).residual_weights(PARAMS.as_vector())
+    assert 0.35e-3 < w.head_scale_m < 0.8e-3
+    assert 0.75 * 0.443e-3 < w.joint_scale_rad < 1.25 * 0.443e-3
+    assert (w.sample_hz, w.final_head, w.cpg) == (Weights().sample_hz, Weights().final_head, Weights().cpg)
+
+
+def test_residual_weights_give_each_channel_unit_variance(runs):
+    """A head drifting sideways by 0.3 m and joints read 5 mrad off: each channel's scale becomes
+    its RMS residual, so that under the new weights both have unit RMS."""
+    moved = [dataclasses.replace(drifted(r, 0.3), q=r.q + 0.005) for r in runs]
+    objective = Objective(moved, PARAMS)
+    x = PARAMS.as_vector()
+    w = objective.residual_weights(x)
+    assert w.head_scale_m > 0.05 and 0.004 < w.joint_scale_rad < 0.006
+    for name, r in objective.with_weights(w).channel_residuals(x).items():
+        assert np.sqrt(np.mean(r ** 2)) == pytest.approx(1.0, rel=1e-9), name

@@ -561,13 +561,9 @@ def balanced_weights(objective: Objective, x: np.ndarray) -> Weights:
     head measurement the weights are unchanged.
     """
     w = objective.weights
-    r = objective.residuals(np.atleast_2d(x))[0]
-    gaps = objective.head_gaps()
-    blocks = objective.residual_blocks()
-    head = np.concatenate([b[:, :2].ravel() for b in blocks])
-    head = head[~gaps[head]]
-    joints = np.concatenate([b[:, 2:13].ravel() for b in blocks])
-    cost_h, cost_j = float(r[head] @ r[head]), float(r[joints] @ r[joints])
+    channels = objective.channel_residuals(x)
+    head, joints = channels["head"], channels["joints"]
+    cost_h, cost_j = float(head @ head), float(joints @ joints)
     if head.size == 0 or cost_j == 0.0 or cost_h <= cost_j:
         return w
     rms = w.head_scale_m * np.sqrt(cost_h / head.size)

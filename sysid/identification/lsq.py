@@ -356,6 +356,21 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
                      extra={"iterates": [(sec, n, params0.from_unit(zz)) for sec, n, zz in path]})
 
 
+def refit_by_residual(objective: Objective, first: FitResult,
+                      fit: Callable[[Objective], FitResult] = fit_lsq) -> FitResult:
+    """Feasible weighted least squares: ``objective`` (the first fit's) with each channel's scale
+    set to its RMS residual at ``first``'s parameters (:meth:`Objective.residual_weights`), fitted
+    again from there by ``fit``. The result's ``seconds`` count both fits; its ``extra`` holds the
+    ``channel_scales`` used (head [m], joints [rad]).
+    """
+    start = objective.with_params(first.params)
+    weights = start.residual_weights(first.params.as_vector())
+    second = fit(start.with_weights(weights))
+    extra = dict(second.extra, channel_scales={"head_scale_m": weights.head_scale_m,
+                                               "joint_scale_rad": weights.joint_scale_rad})
+    return dataclasses.replace(second, seconds=first.seconds + second.seconds, extra=extra)
+
+
 @dataclass
 class _LMState:
     """Where one Levenberg-Marquardt stage ended."""

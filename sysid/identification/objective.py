@@ -41,6 +41,12 @@ from integrators.simulator import SimSettings, SimState, delay_commands, effect_
 from sysid.identification.executor import Executor, LocalExecutor
 
 
+#: Each channel's measurement noise (RMS), below which :meth:`Objective.residual_weights` never
+#: sets a scale: motion capture's position noise [m], the encoders' rounding (one of 4096 counts
+#: per turn, uniform: ``2 pi / 4096 / sqrt 12``) [rad], a Present Current reading's noise [A].
+SENSOR_NOISE = {"head": 0.5e-3, "joints": 2 * np.pi / 4096 / np.sqrt(12), "current": 0.02}
+
+
 @dataclass(frozen=True)
 class Weights:
     """Weights of the objective (documented defaults).
@@ -387,6 +393,44 @@ class Objective:
     def with_params(self, params: ModelParameters) -> "Objective":
         """The same objective from ``params`` (its own evaluation count)."""
         return Objective(self.runs, params, self.weights, self.settings, self.executor, self.threads, self.model)
+
+    def with_weights(self, weights: Weights) -> "Objective":
+        """The same objective under ``weights`` (its own evaluation count)."""
+        return Objective(self.runs, self.params, weights, self.settings, self.executor, self.threads, self.model)
+
+    def channel_residuals(self, x: np.ndarray) -> dict[str, np.ndarray]:
+        """The weighted residuals at ``x`` by channel: ``head`` (x and y of every run, the
+        motion-capture gaps left out), ``joints`` and, with ``Weights.use_current``, ``current``."""
+        r = self.residuals(np.atleast_2d(x))[0]
+        blocks = self.residual_blocks()
+        head = np.concatenate([b[:, :2].ravel() for b in blocks])
+        out = {"head": r[head[~self.head_gaps()[head]]],
+               "joints": r[np.concatenate([b[:, 2:13].ravel() for b in blocks])]}
+        if self.weights.use_current:
+            out["current"] = r[np.concatenate([b[:, 13:].ravel() for b in blocks])]
+        return out
+
+    def residual_weights(self, x: np.ndarray) -> Weights:
+        """The weights with each channel's scale set to its RMS residual at ``x`` [m, rad, A], but
+        never below the channel's sensor noise (:data:`SENSOR_NOISE`): the second step of
+        feasible weighted least squares (each channel's residuals then have unit variance). A
+        channel without residuals keeps its scale.
+
+        Why: the documented scales (1 cm of head error weighs as 0.01 rad of joint error) are each
+        sensor's noise times about 20, the right ratio while the model's structure is right. Under a
+        structural mismatch (another engine's ground, or a real one) the head path carries
+        centimetres that no parameter explains while the servo-held joints stay within about a
+        milliradian, so the fixed scales let the head's structural error pull the actuator and
+        friction values to where they trade joint error for head path. Weighted by what the model
+        leaves in each channel, the fit returns to the values both channels support.
+        """
+        w = self.weights
+        scale = {"head": w.head_scale_m, "joints": w.joint_scale_rad, "current": w.current_scale_a}
+        rms = {name: max(scale[name] * float(np.sqrt(np.mean(r ** 2))), SENSOR_NOISE[name])
+               for name, r in self.channel_residuals(x).items() if r.size}
+        return dataclasses.replace(w, head_scale_m=rms.get("head", w.head_scale_m),
+                                   joint_scale_rad=rms.get("joints", w.joint_scale_rad),
+                                   current_scale_a=rms.get("current", w.current_scale_a))
 
     def on_runs(self, runs: Sequence[Run]) -> "Objective":
         """The same objective over ``runs`` instead (its own evaluation count)."""
