@@ -34,6 +34,7 @@ from cobra_model.model import DEFAULT_URDF, CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.resample import interpolate_rows
 from cobra_model.run import Run
+from cobra_model.servo import PULSES_PER_REV
 from integrators import kernels as K
 from integrators.batch import BatchSimulator
 from integrators.simulate import InitialPose, StartObservation, command_ticks
@@ -42,9 +43,10 @@ from sysid.identification.executor import Executor, LocalExecutor
 
 
 #: Each channel's measurement noise (RMS), below which :meth:`Objective.residual_weights` never
-#: sets a scale: motion capture's position noise [m], the encoders' rounding (one of 4096 counts
-#: per turn, uniform: ``2 pi / 4096 / sqrt 12``) [rad], a Present Current reading's noise [A].
-SENSOR_NOISE = {"head": 0.5e-3, "joints": 2 * np.pi / 4096 / np.sqrt(12), "current": 0.02}
+#: sets a scale: motion capture's position noise [m], the encoders' rounding (one count of
+#: ``PULSES_PER_REV`` per turn, uniform: ``2 pi / 4096 / sqrt 12``) [rad], a Present Current
+#: reading's noise [A].
+SENSOR_NOISE = {"head": 0.5e-3, "joints": 2 * np.pi / PULSES_PER_REV / np.sqrt(12), "current": 0.02}
 
 
 @dataclass(frozen=True)
