@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     choice = None
     if args.method == "lsq":
         from sysid.identification.contact_choice import choose_contact_law, fit_from_shapes, shape_starts
-        from sysid.identification.lsq import fit_lsq
+        from sysid.identification.lsq import fit_lsq, refit_by_residual
         # contact_rounding free: one fit from each shape of the module ends, the lowest cost kept;
         # the budget is shared by every fit (each shape, each law, the refit)
         fits = sum(max(1, len(shape_starts(p))) for p in starts.values()) + (args.channel_weights == "residual")
@@ -147,7 +147,6 @@ def run(args: argparse.Namespace) -> int:
             print("training cost from each starting contact_rounding: "
                   + ", ".join(f"{r0:g} m -> {cost:.4g}" for r0, cost in shapes_starts))
         if args.channel_weights == "residual":
-            from sysid.identification.lsq import refit_by_residual
             result = refit_by_residual(Objective(train, result.params, weights, executor=executor), result, lsq)
             scales = result.extra["channel_scales"]
             print(f"refitted with each channel weighted by its RMS residual: head {scales['head_scale_m'] * 1e3:.3g} mm, "

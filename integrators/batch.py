@@ -66,6 +66,8 @@ class BatchSimulator:
                         ] if first.contact_law in K.SOFT_LAWS else []
         self.act = np.ascontiguousarray(np.stack([s.act for s in self.sims]))
         self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
+        # each body's weight at the reference pose, which scales the soft laws' compliance
+        self.body_weight = np.stack([s.model.reference_weights for s in self.sims]) if self._models else None
         self._first = first
 
     def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float, *,
@@ -128,7 +130,7 @@ class BatchSimulator:
             NLE = np.empty((nv, n), order="F")
             ZERO = np.zeros((nv, n), order="F")
             WARM = np.zeros((n, len(self.model.features), 4))
-            WEIGHT = np.ascontiguousarray(np.stack([self.sims[e].model.reference_weights for e in slots]))
+            WEIGHT = np.ascontiguousarray(self.body_weight[slots])
         sub = s.substeps
         every = record_every if record_every > 0 else max(n_steps, 1)
         n_rec = n_steps // every + 1

@@ -915,7 +915,7 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
     ``body_invweight0``. So ``R``, the contact's compliance in force units, is a property of the
     contact and its body, not of the robot's pose: taken from the current pose
     (``J D^-1 J^T``, this law's earlier form) it changed as the chain bent, and MuJoCo's runs
-    were followed about half as well (joint RMSE over 6 s at MuJoCo's values: 0.30 -> 0.20
+    were followed less closely (joint RMSE over 6 s at MuJoCo's values: 0.30 -> 0.20
     mrad at 0.35 Hz, 0.43 -> 0.39 mrad at 0.65 Hz; elliptic cone 0.44 -> 0.23 and
     0.69 -> 0.61 mrad). Per-edge ``(1 - d) / d diag(A)``, the form before that, made the pyramid
     ``1 / (2 mu^2)`` (9 at ``mu = 0.24``) times softer than MuJoCo's: fitted to MuJoCo's runs it
