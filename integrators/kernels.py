@@ -635,15 +635,28 @@ def nonnegative_qp(M, r, f):
 
 
 @njit(cache=True)
-def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1, mu2, elliptic=False):
+def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, v, mu1, mu2, elliptic=False):
     """The constraint rows of every touching point (``X[k, 2] < 0``), in feature order.
 
-    Returns ``rows`` and ``depth``. On the friction pyramid (``elliptic`` False) ``rows`` is
-    (4 n, nv): ``J_n + mu1 J_t1``, ``J_n - mu1 J_t1``, ``J_n + mu2 J_t2``, ``J_n - mu2 J_t2``
-    for each of the n touching points; on the elliptic cone (3 n, nv): ``J_n``, ``J_t1``,
-    ``J_t2``. ``J_*`` is the point's world Jacobian along the ground normal ``z``, the body's x
-    axis on the ground ``t1`` and ``t2 = z x t1`` (Pinocchio's velocity convention: a floating
-    root's columns act in its own frame); ``depth`` (one per row) the points' heights [m] (< 0).
+    Returns ``rows``, ``depth`` and ``drift``. On the friction pyramid (``elliptic`` False)
+    ``rows`` is (4 n, nv): ``J_n + mu1 J_t1``, ``J_n - mu1 J_t1``, ``J_n + mu2 J_t2``,
+    ``J_n - mu2 J_t2`` for each of the n touching points; on the elliptic cone (3 n, nv):
+    ``J_n``, ``J_t1``, ``J_t2``. ``J_*`` is the point's world Jacobian along the ground normal
+    ``z``, the body's x axis on the ground ``t1`` and ``t2 = z x t1`` (Pinocchio's velocity
+    convention: a floating root's columns act in its own frame); ``depth`` (one per row) the
+    points' heights [m] (< 0).
+
+    ``drift`` (one per row) [m/s^2] is ``J_root,lin (omega x v_lin)``, with ``v_lin`` and
+    ``omega`` the floating root's linear and angular velocity in its own frame (``v[:3]``,
+    ``v[3:6]``; zero for a fixed root). The soft constraint takes a point's acceleration as
+    ``J a`` and drops ``Jdot v``, as MuJoCo does. In the root's rotating frame
+    ``dv_lin/dt`` lacks the frame's turning, ``omega x v_lin``, so what is dropped would
+    depend on how fast the root translates while it turns: a robot sliding and turning would
+    be pushed differently from one turning in place, which no physical contact does. With
+    ``J a + drift`` the acceleration is that of the root's world-frame velocity (MuJoCo's free
+    joint), and what is dropped no longer depends on the root's speed. Without it our forces
+    differed from MuJoCo's at the same state by up to 8 N of 20 (the contact's share of the
+    joint accelerations by up to 5 %).
     """
     per = 3 if elliptic else 4
     touching = 0
@@ -652,6 +665,12 @@ def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1,
             touching += 1
     rows = np.zeros((per * touching, nv))
     depth = np.empty(per * touching)
+    drift = np.zeros(per * touching)
+    turn = np.zeros(3)
+    if floating:                      # omega x v_lin, the root's own frame
+        turn[0] = v[4] * v[2] - v[5] * v[1]
+        turn[1] = v[5] * v[0] - v[3] * v[2]
+        turn[2] = v[3] * v[1] - v[4] * v[0]
     R, p, aw = kin_R, kin_v[:, 0], kin_v[:, 3]
     Jp = np.zeros((3, nv))
     row = 0
@@ -693,8 +712,9 @@ def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1,
                 rows[row + 3, col] = jn - mu2 * j2
         for e in range(per):
             depth[row + e] = x2
+            drift[row + e] = rows[row + e, 0] * turn[0] + rows[row + e, 1] * turn[1] + rows[row + e, 2] * turn[2]
         row += per
-    return rows, depth
+    return rows, depth, drift
 
 
 @njit(cache=True)
@@ -751,7 +771,7 @@ def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Hc):
 
 
 @njit(cache=True)
-def elliptic_contact_acceleration(D, a0, v, rows, depth, weight, mu1, mu2, tc, f, a_out):
+def elliptic_contact_acceleration(D, a0, v, rows, depth, drift, weight, mu1, mu2, tc, f, a_out):
     """Accelerations (nv,) under MuJoCo's soft constraint on the elliptic friction cone
     (condim 3, ``cone="elliptic"``, ``impratio`` 1), by Newton's method on its primal problem.
 
@@ -760,12 +780,13 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, weight, mu1, mu2, tc, f
     together they minimise ``f (A + R) f / 2 - f (a_ref - J a0)``, ``A = J D^-1 J^T``, with
 
         R_n = R_1 = (1 - d) / d w,  R_2 = R_1 mu1^2 / mu2^2,
-        a_ref,n = -b J_n v - k d r,   a_ref,t = -b J_t v,   b = 2 / (d_max tc),  k = 1 / (d_max^2 tc^2 zeta^2),
+        a_ref,n = -b J_n v - k d r - c_n,   a_ref,t = -b J_t v - c_t,   b = 2 / (d_max tc),  k = 1 / (d_max^2 tc^2 zeta^2),
 
     MuJoCo's regulariser and reference acceleration on this cone (the friction rows carry no
     position term; their ``R`` makes the cone circular in the coordinates ``R^(1/2) f``), ``w``
     the contact's body's weight at the reference pose (MuJoCo's ``diagApprox``; see
-    :func:`soft_contact_acceleration`). The same problem in
+    :func:`soft_contact_acceleration`) and ``c`` the rows' ``drift`` (the root frame's turning,
+    :func:`soft_contact_rows`). The same problem in
     accelerations ``a`` (MuJoCo's primal form): minimise
     ``(a - a0) M (a - a0) / 2 + sum |P(-R^(-1/2) (J a - a_ref))|^2 / 2`` over the contacts, ``P``
     the projection onto that circular cone (:func:`cone_projection`); its gradient is
@@ -777,7 +798,7 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, weight, mu1, mu2, tc, f
         D: ``M^-1`` (nv, nv), symmetric.
         a0: acceleration without contact (nv,).
         v: velocity (nv,).
-        rows, depth: :func:`soft_contact_rows` (elliptic).
+        rows, depth, drift: :func:`soft_contact_rows` (elliptic).
         weight: (n,) each touching point's body weight ``w`` [1/kg].
         mu1, mu2: friction along the body and sideways [1]; tc: time constant [s].
         f: (3 n,) the last step's forces [N] on entry (the start), this step's on return.
@@ -802,7 +823,7 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, weight, mu1, mu2, tc, f
             jv = 0.0
             for col in range(nv):
                 jv += rows[r0 + e, col] * v[col]
-            aref[r0 + e] = -bcoef * jv
+            aref[r0 + e] = -bcoef * jv - drift[r0 + e]
         aref[r0] -= kcoef * d * depth[r0]
     a = a0.copy()
     for col in range(nv):
@@ -902,9 +923,10 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
     that solves, for all rows together,
 
         (A + R) f = a_ref - J a0,  A = J D^-1 J^T,  R = 2 mu1^2 (1 - d) / d (1 + mu1^2) w  (each edge of a contact),
-        a_ref = -b J v - k d r,    b = 2 / (d_max tc),  k = 1 / (d_max^2 tc^2 zeta^2),
+        a_ref = -b J v - k d r - c,    b = 2 / (d_max tc),  k = 1 / (d_max^2 tc^2 zeta^2),
 
     with ``a0 = D^-1 (tau - nle)`` the acceleration without contact, ``r`` the depth [m],
+    ``c`` the rows' ``drift`` (the floating root frame's turning, :func:`soft_contact_rows`),
     ``d(r)`` :func:`soft_impedance` and ``w`` the weight of the contact's body, its mean
     translational inverse inertia at the reference pose
     (:attr:`cobra_model.model.RobotModel.reference_weights`): a contact is a constraint whose
@@ -958,8 +980,8 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
             acc += D[i, j] * g[j]
         a_out[i] = acc
     mu1, tc = ground[G_MU_C], ground[G_TC]
-    rows, depth = soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, mu1, mu1 * ground[G_LATERAL],
-                                    elliptic)
+    rows, depth, drift = soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, v, mu1,
+                                           mu1 * ground[G_LATERAL], elliptic)
     m = rows.shape[0]
     if m == 0:
         warm[:, :] = 0.0
@@ -975,7 +997,7 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
             weight[row // per] = body_weight[f_body[k]]
             row += per
     if elliptic:
-        iterations = elliptic_contact_acceleration(D, a_out.copy(), v, rows, depth, weight, mu1,
+        iterations = elliptic_contact_acceleration(D, a_out.copy(), v, rows, depth, drift, weight, mu1,
                                                    mu1 * ground[G_LATERAL], tc, f, a_out)
         _store_warm(X, f, per, warm)
         return iterations
@@ -995,7 +1017,7 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
             for col in range(nv):
                 jv += rows[j, col] * v[col]
                 ja += rows[j, col] * a_out[col]
-            rhs[j] = -bcoef * jv - kcoef * d * depth[j] - ja
+            rhs[j] = -bcoef * jv - kcoef * d * depth[j] - drift[j] - ja
     iterations = nonnegative_qp(A, rhs, f)
     _store_warm(X, f, per, warm)
     for col in range(nv):

@@ -185,8 +185,12 @@ def test_fit_under_the_soft_law_records_it_and_compare_uses_it(soft_data, tmp_pa
 @pytest.mark.slow
 def test_fit_with_the_ends_shape_free_starts_from_each_shape_and_keeps_the_cheapest(soft_data, tmp_path, capsys):
     """With ``contact_rounding`` free, ``cobra fit`` fits from sharp, half- and fully rounded ends
-    and keeps the lowest training cost: here the truth's sharp ends (0 m), where a fit from the
-    rounded ones would stay in their basin."""
+    and keeps the lowest training cost. The truth has sharp ends (0 m); the capsule's (0.045 m)
+    stay in their own basin at a cost several times higher. Sharp and half-rounded ends are not
+    told apart by these two 3 s runs: on sharp rims the cost is rough at the millimetre level (a
+    contact switching on one step later moves the head; at the truth a change of 1e-4 of
+    ``mu_c`` raises the cost from 0.003 to 2.8), and both fits end within that roughness
+    (measured 1.9 and 1.8)."""
     train, _ = soft_data
     out = tmp_path / "shape_fit.json"
     assert main(["fit", *map(str, train), "--contact", "soft_constraint", "--free",
@@ -195,7 +199,8 @@ def test_fit_with_the_ends_shape_free_starts_from_each_shape_and_keeps_the_cheap
     costs = {float(a.split(" m -> ")[0]): float(a.split(" m -> ")[1]) for a in line.split(": ")[1].split(", ")}
     assert sorted(costs) == [0.0, 0.0225, 0.045]
     fitted = ModelParameters.load(out)
-    assert fitted.contact_rounding < 0.005                              # the truth's sharp ends
+    assert costs[0.045] > 3 * min(costs.values())                       # not the capsule's ends
+    assert fitted.contact_rounding < 0.03
     assert json.loads(out.read_text())["fit"]["cost"] == pytest.approx(min(costs.values()), rel=1e-3)
 
 
