@@ -214,12 +214,14 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 }
 
 
-#: When the soft-constraint contact laws last changed (each contact's compliance from its body's
-#: weight at the reference pose, not the current pose: commit d544653, CHANGELOG "thirteenth
-#: stop"). Rows of the files in :data:`SOFT_LAW_SOURCES` measured before it say so.
-SOFT_LAWS_CHANGED_UTC = "2026-11-25T15:05"
+#: When the soft-constraint contact laws last changed, and the commit: the reference acceleration
+#: takes the floating root frame's turning (CHANGELOG "fourteenth stop"; before it, d544653: each
+#: contact's compliance from its body's weight at the reference pose). Rows of the files in
+#: :data:`SOFT_LAW_SOURCES` measured before it say so.
+SOFT_LAWS_CHANGED_UTC = "2026-11-25T18:00"
+SOFT_LAWS_COMMIT = "5feff3c"
 SOFT_LAW_SOURCES = ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit", "mujoco_fit_elliptic",
-                    "contact_law")
+                    "mujoco_fit_residual", "contact_law")
 
 
 def render() -> str:
@@ -234,7 +236,7 @@ def render() -> str:
             stamp = doc["environment"]["date_utc"]
             date = stamp[:10]
             if name in SOFT_LAW_SOURCES and stamp < SOFT_LAWS_CHANGED_UTC:
-                date += "; soft laws before d544653"
+                date += f"; soft laws before {SOFT_LAWS_COMMIT}"
             rows = rows_of(doc)
         except (KeyError, TypeError, IndexError, StopIteration) as err:
             raise ResultsError(f"{RESULTS / (name + '.json')}: missing or malformed entry ({err!r}); "
