@@ -3,11 +3,17 @@ bounded energy error where the velocity form drifts, on COBRA and on example-rob
 and double pendulum, with the same contact and passivity invariants as the velocity form.
 
 Bounds. Symplectic Euler keeps the energy within an O(dt) band around a conserved "modified"
-energy instead of drifting. Measured on COBRA in free flight without gravity (1 rad/s rms joint
-rates, dt = 1 ms, 60 s): linear trend +1e-4 % per second (the velocity form: +0.39 % per
-second), 10 s window means +0.013..+0.025 % of E(0), largest excursion 0.10 %. The tests assert
-the issue's 0.02 % per second on the trend, that the level of the last 10 s is within 0.02 % of
-the first 10 s (no systematic growth: the velocity form moves it by ~20 %) and a 0.3 % band.
+energy instead of drifting. COBRA in free flight without gravity (1 rad/s rms joint rates,
+dt = 1 ms, 60 s) is chaotic, so the excursions depend on the rounding and differ between
+machines: measured linear trend +1e-4 to +3.4e-4 % per second (the velocity form: +0.39 % per
+second), 10 s window means 0.013-0.044 % of E(0) (their change over the flight 0.025 %),
+largest excursion 0.10 % on one machine and 0.49 % on another. The band is O(dt) times the
+fastest joint rate: from other initial speeds, where the energy gathers in a distal joint
+whipping at 25-40 rad/s, it reaches 6 % at 1 ms and 1.5 % at 0.5 ms, and comes back. The tests
+assert the issue's 0.02 % per second on the trend, that the level of the last 10 s is within
+0.1 % of the first 10 s on COBRA and 0.02 % on the double pendulum and Solo (no systematic
+growth: a drift at the issue's bar would move it by 1 % between the windows, the velocity form
+moves it by ~20 %) and a 1 % band on COBRA.
 The step is first order in the trajectory, which a refinement study asserts.
 """
 from __future__ import annotations
@@ -30,13 +36,13 @@ def flight(model: RobotModel, seconds: float, *, scheme: str = "momentum", dt: f
     return sim, tr, (E - E[0]) / E[0]
 
 
-def assert_bounded(t: np.ndarray, rel: np.ndarray, band: float) -> None:
+def assert_bounded(t: np.ndarray, rel: np.ndarray, band: float, level: float = 2e-4) -> None:
     """No drift (trend at most 0.02 % per second), no growth of the level between the first and
-    the last 10 s, and every excursion within ``band`` (fractions of E(0))."""
+    the last 10 s (within ``level``), and every excursion within ``band`` (fractions of E(0))."""
     trend = np.polyfit(t - t[0], rel, 1)[0]
     assert abs(trend) <= 2e-4, f"energy trend {100 * trend:+.4f} % per second"
     first, last = rel[t - t[0] < 10.0], rel[t - t[0] >= t[-1] - t[0] - 10.0]
-    assert abs(last.mean() - first.mean()) <= 2e-4
+    assert abs(last.mean() - first.mean()) <= level, f"energy level moved {100 * (last.mean() - first.mean()):+.4f} %"
     assert np.abs(rel).max() <= band
 
 
@@ -72,7 +78,7 @@ def test_lagrangian_gradient_matches_finite_differences_in_the_chart(cobra):
 @pytest.mark.slow
 def test_cobra_free_flight_energy_bounded_over_60_s(cobra):
     sim, tr, rel = flight(cobra, 60.0)
-    assert_bounded(tr.t, rel, 3e-3)
+    assert_bounded(tr.t, rel, 1e-2, level=1e-3)
     # the same flight in the velocity form drifts: the test can tell the two apart
     _, tr_v, rel_v = flight(cobra, 10.0, scheme="velocity")
     assert np.polyfit(tr_v.t, rel_v, 1)[0] > 1e-3
