@@ -6,9 +6,12 @@ module ends, all a soft constraint with a 20 ms time constant. Our paper's law i
 sharp cylinder rims; with the limit's shape (``friction_cone``) and the ends' rounding
 (``contact_rounding``) free, the compliant ground's fit must find MuJoCo's shapes from the motion
 alone. Its path still drifts from MuJoCo's; the soft-constraint law, fitted beside it and chosen
-on validation runs (``sysid.identification.contact_choice``), follows it.
+on validation runs (``sysid.identification.contact_choice``), follows it. On MuJoCo's elliptic
+friction cone the soft-constraint law on the elliptic cone is chosen over the pyramid's.
 """
 from __future__ import annotations
+
+import dataclasses
 
 import numpy as np
 import pytest
@@ -60,8 +63,8 @@ def gaps_of(runs, named_params):
 def case(cobra):
     """On MuJoCo's default contact: the compliant and the soft-constraint (pyramid) laws fitted, one
     chosen on three validation runs (3 s, heading 0.8 rad, their own noise). The elliptic law is
-    left to ``benchmarks/mujoco_fit.py``, which fits all three (two keep this test short), and to
-    ``tests/test_soft_contact.py`` (the law against MuJoCo's elliptic cone)."""
+    left to ``elliptic_case``, to ``benchmarks/mujoco_fit.py``, which fits all three (two keep this
+    test short), and to ``tests/test_soft_contact.py`` (the law against MuJoCo's elliptic cone)."""
     train, hold, options = runs_of(cobra, lambda twin: twin)
     valid = record(cobra, options, np.random.default_rng(5 + 10_000), "v", 3.0, (-0.5, 0.5), 0.8)
     start = ModelParameters.nominal()
@@ -77,6 +80,32 @@ def stiff_case(cobra):
     start = ModelParameters.nominal().with_frozen(free=FREE)
     result = fit(Objective(train, start, Weights()))
     return result, gaps_of(hold, {"nominal": start, "fitted": result.params})
+
+
+@pytest.fixture(scope="module")
+def elliptic_case(cobra):
+    """On MuJoCo's elliptic friction cone with a softer (40 ms) contact, ``benchmarks/mujoco_fit.py``'s
+    ``elliptic_soft`` configuration: the two soft-constraint laws fitted, one chosen on three
+    validation runs. Each law's fit starts from capsule ends only (MuJoCo's; the search over the
+    ends' shape is the default case's), which keeps this test to two fits."""
+    train, hold, options = runs_of(cobra, lambda twin: dataclasses.replace(twin, cone="elliptic", solref=(0.04, 1.0)))
+    valid = record(cobra, options, np.random.default_rng(5 + 10_000), "v", 3.0, (-0.5, 0.5), 0.8)
+    choice = choose_contact_law(train, valid, ModelParameters.nominal(), laws=("soft_constraint", "soft_elliptic"),
+                                rounding_starts=(design.MODULE_RADIUS_M,), fit=fit)
+    return choice, gaps_of(hold, {f.law: f.fit.params for f in choice.fits})
+
+
+def test_on_mujocos_elliptic_cone_the_elliptic_law_is_chosen_and_within_5_cm(elliptic_case):
+    """The pyramid's diamond-shaped friction limit cannot bend to MuJoCo's round one (issue 16's
+    elliptic_soft configuration missed the 5 cm bound on 10 of 18 held-out runs with it); the
+    elliptic law is chosen on validation runs and brings every held-out final head error under
+    the bound, with joints that follow MuJoCo's at least twice as closely as the pyramid's."""
+    choice, gaps = elliptic_case
+    assert choice.chosen == "soft_elliptic", choice.to_json()
+    heads = {law: [g["head_final_error_m"] for g in gaps[law]] for law in gaps}
+    joints = {law: [g["joint_rmse_rad"]["mean"] for g in gaps[law]] for law in gaps}
+    assert max(heads["soft_elliptic"]) <= 0.05, heads
+    assert max(joints["soft_elliptic"]) < 0.5 * max(joints["soft_constraint"]), joints
 
 
 def test_the_compliant_fit_finds_mujocos_contact_shapes(case):
