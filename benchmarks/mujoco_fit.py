@@ -73,6 +73,7 @@ from cobra_model import CobraModel, ModelParameters
 from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulate import simulate_like
+from integrators.simulator import STEPS_PER_CONTACT_TIME_CONSTANT
 from cobra_model.servo import PULSES_PER_REV
 from sysid.generators.dataset import RunPlan
 from sysid.identification.contact_choice import LAW_FREE, choose_contact_law
@@ -182,6 +183,7 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
             "fit_seconds": sum(f.seconds for f in choice.fits) + (best.seconds - first.seconds),
             "at_bound": [r.name for r in best.report if r.at_bound], "intervals": intervals,
             "fitted": {n: best.params.value(n) for n in best.params.free_names},
+            "step_s": best.extra.get("step_s"),
         })
     return rows
 
@@ -189,6 +191,8 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
 def markdown(rows: list[dict], meta: dict) -> str:
     """The per-gait table, the pass counts and the interval coverage."""
     starts = [s for s, _ in rows[0]["choice"]["fits"][0]["train_cost_by_rounding_start"]]
+    steps = sorted({r["step_s"] for r in rows if r.get("step_s")})
+    chosen_steps = f" (the chosen fits' steps: {', '.join(f'{1e3 * s:g}' for s in steps)} ms)" if steps else ""
     residual = meta["channel_weights"] == "residual"
     refit = ("; the chosen law then refitted with each channel weighted by its RMS residual (feasible weighted "
              "least squares; the 'fixed weights' columns give the chosen fit before that)") if residual else ""
@@ -200,7 +204,9 @@ def markdown(rows: list[dict], meta: dict) -> str:
              f"{meta['iterations_per_stage']} Jacobians per stage at most; each contact law fitted with its "
              f"own free parameters ({'; '.join(f'{law}: ' + ', '.join(free) for law, free in meta['free'].items())}) "
              f"from contact_rounding {', '.join(f'{s:g}' for s in starts)} m (the lowest training cost kept), "
-             f"the law with the lower cost on three validation runs chosen{refit}. Bounds: held-out final head error "
+             f"the law with the lower cost on three validation runs chosen{refit}; physics step 1 ms, or the "
+             f"fraction of it that gives a fitted soft contact {STEPS_PER_CONTACT_TIME_CONSTANT} steps per time "
+             f"constant{chosen_steps}. Bounds: held-out final head error "
              f"<= {HEAD_BOUND_M * 100:g} cm, joint RMSE <= {JOINT_BOUND_FACTOR:g} x floor "
              f"({JOINT_FLOOR_RAD * 1e3:.3f} mrad).", "",
              "| config | seed | heading [rad] | gait [Hz] | head final: nominal [m] | "

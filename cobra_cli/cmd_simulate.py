@@ -12,7 +12,7 @@ from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.run_files import read_run, write_run
 from integrators.simulate import simulate_gait, simulate_like
-from integrators.simulator import SCHEMES, SimSettings, Simulator
+from integrators.simulator import SCHEMES, SimSettings, Simulator, contact_resolved
 from sysid.discrepancy.effects import EffectLibrary, parse_effects
 
 
@@ -26,7 +26,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--params", help="parameter file (default: nominal parameters)")
     p.add_argument("--from", dest="from_run", metavar="RUN.csv",
                    help="reproduce this run: its initial pose and q_ref columns (ignores --freq/--duration)")
-    p.add_argument("--dt", type=float, default=1e-3, help="physics step [s] (default 0.001)")
+    p.add_argument("--dt", type=float, default=None,
+                   help="physics step [s] (default 0.001, or the fraction of the servo period that gives a "
+                        "soft contact at least 4 steps per time constant)")
     p.add_argument("--control-dt", type=float, default=None,
                    help="servo loop period [s], a multiple of --dt (default = --dt)")
     p.add_argument("--scheme", choices=SCHEMES, default="velocity",
@@ -48,7 +50,10 @@ def run(args: argparse.Namespace) -> int:
     if args.effect:
         params = EffectLibrary().transform(params, parse_effects(args.effect), frozen=True)
     try:
-        settings = SimSettings(dt=args.dt, control_dt=args.control_dt or args.dt, scheme=args.scheme)
+        dt = SimSettings.dt if args.dt is None else args.dt
+        settings = SimSettings(dt=dt, control_dt=args.control_dt or dt, scheme=args.scheme)
+        if args.dt is None:
+            settings = contact_resolved(settings, params)
     except ValueError as exc:
         raise InputError(f"--dt/--control-dt/--scheme: {exc}") from None
     if args.duration <= 0:

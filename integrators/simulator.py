@@ -209,6 +209,36 @@ class SimSettings:
         return int(round(self.control_dt / self.dt))
 
 
+#: Physics steps per soft-contact time constant at the least (:func:`contact_resolved`).
+STEPS_PER_CONTACT_TIME_CONSTANT = 4
+
+
+def contact_resolved(settings: SimSettings, params: ModelParameters) -> SimSettings:
+    """``settings`` with a physics step short enough for ``params``' soft contact: at least
+    :data:`STEPS_PER_CONTACT_TIME_CONSTANT` steps per ``contact_time_constant`` ``tc``, ``dt`` an
+    integer fraction of ``control_dt`` (the servo loop keeps its period). Unchanged for the
+    compliant ground, or where ``dt`` already resolves ``tc``; never coarser than ``settings``.
+
+    Why: a soft-constraint contact relaxes its approach velocity and penetration at the rate
+    ``b = 2 / (d tc)`` (``d`` ~ 0.95 the impedance). The semi-implicit step takes that decay as
+    ``1 - b dt`` per step instead of ``exp(-b dt)``, an error of about ``1 / N`` of each
+    transient with ``N = tc / dt`` steps per time constant. At ``tc = 2 dt`` (MuJoCo's own
+    lowest, its stability limit) the contact is removed in about one step: at MuJoCo's values
+    against MuJoCo's 2 ms contact (its 0.25 ms steps), our joints are 0.57-1.60 mrad off with
+    1 ms steps, 0.28-0.54 mrad with 0.5 ms (N = 4) and 0.27-0.40 mrad with 0.25 ms (N = 8; the
+    encoders' rounding floor is 0.44 mrad). Four steps per time constant bring that
+    discretisation error to the floor at twice the cost; MuJoCo's default 20 ms contact needs
+    no change at 1 ms.
+    """
+    if params.contact_law not in K.SOFT_LAWS:
+        return settings
+    shortest = params.value("contact_time_constant") / STEPS_PER_CONTACT_TIME_CONSTANT
+    if settings.dt <= shortest * (1 + 1e-9):
+        return settings
+    per_tick = int(np.ceil(settings.control_dt / shortest - 1e-9))
+    return replace(settings, dt=settings.control_dt / per_tick)
+
+
 @dataclass(frozen=True)
 class SimState:
     """Everything that evolves: time [s], q (nq,), v (nv,), the servo loop's memory (pulses),
@@ -271,7 +301,8 @@ class Simulator:
     Args:
         model: the robot (COBRA or any URDF loaded by :class:`RobotModel`).
         params: physical parameters (actuator, ground, optional effects) and the contact law.
-        settings: numerical settings.
+        settings: numerical settings (default: :class:`SimSettings`' with a step that resolves a
+            soft contact's time constant, :func:`contact_resolved`; given settings are kept).
 
     Raises:
         InputError: the soft-constraint law with the momentum scheme, or a contact time
@@ -281,7 +312,7 @@ class Simulator:
     def __init__(self, model: RobotModel, params: ModelParameters | None = None,
                  settings: SimSettings | None = None):
         self.params = params if params is not None else ModelParameters.nominal()
-        self.settings = settings if settings is not None else SimSettings()
+        self.settings = settings if settings is not None else contact_resolved(SimSettings(), self.params)
         p, s = self.params, self.settings
         n = model.n_joints
         def per_joint(name: str) -> np.ndarray:

@@ -605,7 +605,7 @@ def check_runs(runs: Sequence[Run], params: ModelParameters, *, horizon_s: float
         lengths = ", ".join(f"{f.name} {f.duration_s:.2f} s" for f in found)
         return DataCheck(found, held, None, (f"no run is long enough to fit (at least {min_duration_s:g} s): "
                                              f"{lengths}",))
-    objective = Objective(list(runs), params, weights or Weights(), settings or SimSettings(),
+    objective = Objective(list(runs), params, weights or Weights(), settings,
                           threads=threads).truncated(horizon_s)
     J = unit_jacobian(objective)
     ident = analyse_jacobian(J, params, horizon_s=min(horizon_s, max(f.duration_s for f in found)),

@@ -57,6 +57,7 @@ import numpy as np
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
 from sysid.identification.intervals import Whiteness, sandwich_covariance, whiteness
+from integrators.simulator import contact_resolved
 from sysid.identification.objective import Objective
 
 
@@ -298,11 +299,17 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
         progress: called with (iteration, cost, seconds) after each Jacobian; iterations count
             on over the stages.
 
+    A soft contact fitted faster than the objective's step resolves
+    (:func:`integrators.simulator.contact_resolved`) gets one more whole-run stage at a step that
+    does, from where the last one ended; its simulations (``simulate_like``, an
+    :class:`Objective` built on the result) take that step by themselves.
+
     Returns:
         FitResult with the fitted parameters, an iteration log (with each entry's horizon), a
         status and per-parameter intervals and identifiability flags; ``extra["iterates"]``
         lists (seconds since the start, evaluations, parameters) of the start and of every
-        accepted step, over all stages (what a benchmark plots against wall time).
+        accepted step, over all stages (what a benchmark plots against wall time), and
+        ``extra["step_s"]`` the physics step [s] of the last stage.
     """
     if list(horizons_s) != sorted(horizons_s) or any(h <= 0 for h in horizons_s):
         raise InputError(f"horizons_s must be positive and increasing, got {list(horizons_s)}")
@@ -335,6 +342,18 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     z = lm.z
     log.extend(lm.log)
     path.extend(lm.path)
+    finer = contact_resolved(objective.settings, params0.from_unit(z))
+    if finer != objective.settings:
+        # the fitted contact relaxes faster than the step resolves: the whole runs again at a step
+        # that does (the values, the intervals and every later simulation of them use it)
+        done = objective.evaluations
+        objective = objective.with_settings(finer)
+        lm = _levenberg_marquardt(objective, z, max_iterations=max(max_iterations, 1),
+                                  first_iteration=len({e.iteration for e in log}), evaluations_before=done, **settings)
+        objective.evaluations += done
+        z = lm.z
+        log.extend(lm.log)
+        path.extend(lm.path)
     fitted = params0.from_unit(z)
     blocks = objective.residual_blocks()
     start_pose = objective.start_pose_sensitivity(lm.r)
@@ -353,7 +372,8 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
                      objective.evaluations, time.perf_counter() - t_start, residual_count=lm.r.size,
                      residual_whiteness=white, interval_method=found.method,
                      report_without_current=without_current,
-                     extra={"iterates": [(sec, n, params0.from_unit(zz)) for sec, n, zz in path]})
+                     extra={"iterates": [(sec, n, params0.from_unit(zz)) for sec, n, zz in path],
+                            "step_s": objective.settings.dt})
 
 
 def refit_by_residual(objective: Objective, first: FitResult,

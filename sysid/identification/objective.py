@@ -38,7 +38,7 @@ from cobra_model.servo import PULSES_PER_REV
 from integrators import kernels as K
 from integrators.batch import BatchSimulator
 from integrators.simulate import InitialPose, StartObservation, command_ticks
-from integrators.simulator import SimSettings, SimState, delay_commands, effect_value
+from integrators.simulator import SimSettings, SimState, contact_resolved, delay_commands, effect_value
 from sysid.identification.executor import Executor, LocalExecutor
 
 
@@ -357,7 +357,8 @@ class Objective:
         runs: measured training runs.
         params: parameter set; its free parameters are the optimisation variables.
         weights: objective weights.
-        settings: simulator settings.
+        settings: simulator settings (default: :class:`SimSettings`' with a step that resolves
+            ``params``' soft contact, :func:`integrators.simulator.contact_resolved`).
         executor: where parameter-vector chunks are evaluated (default: in-process).
         threads: threads of one batched evaluation (default: 2 in-process, 1 per worker
             process). Threads meet at a barrier every physics step, so use 1 when other
@@ -368,7 +369,7 @@ class Objective:
     runs: Sequence[Run]
     params: ModelParameters
     weights: Weights = field(default_factory=Weights)
-    settings: SimSettings = field(default_factory=SimSettings)
+    settings: SimSettings | None = None
     executor: Executor = field(default_factory=lambda: LocalExecutor(1))
     threads: int | None = None
     model: CobraModel = field(default_factory=CobraModel.load)
@@ -386,6 +387,8 @@ class Objective:
                                  f"none in {', '.join(missing)}")
         if self.model.urdf_path is None:
             raise InputError("the objective's model must come from a URDF file (worker processes load it)")
+        if self.settings is None:
+            self.settings = contact_resolved(SimSettings(), self.params)
         self.spec = ObjectiveSpec(tuple(RunTarget.of_run(r, self.settings, self.weights.sample_hz, self.model)
                                         for r in self.runs),
                                   self.params, self.weights, self.settings,
@@ -393,8 +396,14 @@ class Objective:
                                   threads=self.threads or (2 if self.executor.workers == 1 else 1))
 
     def with_params(self, params: ModelParameters) -> "Objective":
-        """The same objective from ``params`` (its own evaluation count)."""
-        return Objective(self.runs, params, self.weights, self.settings, self.executor, self.threads, self.model)
+        """The same objective from ``params`` (its own evaluation count), its step refined if
+        ``params``' soft contact needs a shorter one (:func:`integrators.simulator.contact_resolved`)."""
+        return Objective(self.runs, params, self.weights, contact_resolved(self.settings, params), self.executor,
+                         self.threads, self.model)
+
+    def with_settings(self, settings: SimSettings) -> "Objective":
+        """The same objective under other simulator ``settings`` (its own evaluation count)."""
+        return Objective(self.runs, self.params, self.weights, settings, self.executor, self.threads, self.model)
 
     def with_weights(self, weights: Weights) -> "Objective":
         """The same objective under ``weights`` (its own evaluation count)."""
