@@ -134,6 +134,8 @@ def _mujoco_fit(doc: dict) -> list[tuple[str, str, str]]:
                       f"{sum(r['config'] == c for r in rows)}" for c in configs)
     refit = doc["meta"].get("channel_weights", "fixed") == "residual"
     how = ", then refitted with each channel weighted by its RMS residual" if refit else ""
+    if any(r.get("step_s") for r in rows):
+        how += ", physics step resolving each fitted contact (>= 4 steps per time constant)"
     fixed = ""
     if refit:
         floor = doc["meta"]["joint_bound_factor"] * doc["meta"]["joint_floor_rad"]
@@ -207,8 +209,7 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "diagnose_matrix_soft_constraint": _matrix, "diagnose_matrix_choose": _matrix, "effect_signal": _signal,
     "diagnose_accuracy": _accuracy,
     "mujoco_robustness": _robustness,
-    "mujoco_robustness_stiff": _robustness, "mujoco_fit": _mujoco_fit,
-    "mujoco_fit_elliptic": _mujoco_fit, "mujoco_fit_residual": _mujoco_fit,
+    "mujoco_robustness_stiff": _robustness, "mujoco_fit_residual": _mujoco_fit, "mujoco_fit_stiff": _mujoco_fit,
     "contact_time_constant": _contact_time_constant,
     "contact_law": _contact_law,
     "coverage": _coverage, "fault_matrix": _faults,
@@ -221,8 +222,8 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #: :data:`SOFT_LAW_SOURCES` measured before it say so.
 SOFT_LAWS_CHANGED_UTC = "2026-11-25T18:00"
 SOFT_LAWS_COMMIT = "5feff3c"
-SOFT_LAW_SOURCES = ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit", "mujoco_fit_elliptic",
-                    "mujoco_fit_residual", "contact_law")
+SOFT_LAW_SOURCES = ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual",
+                    "mujoco_fit_stiff", "contact_law")
 
 
 def render() -> str:

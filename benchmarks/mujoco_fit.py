@@ -50,12 +50,12 @@ Progress goes to stderr; results to ``benchmarks/results/mujoco_fit.{json,md}``.
 
 Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--seeds 101,102,103]
 [--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint,soft_elliptic]
-[--channel-weights fixed|residual] [--name STEM]`` (``results/mujoco_fit.md``: all five
-configurations with the compliant and pyramid laws, as run before the elliptic law existed and
-before the soft laws took their bodies' weights at the reference pose;
-``results/mujoco_fit_elliptic.md``: the two elliptic configurations with all three laws, also
-before that; ``results/mujoco_fit_residual.md``: twin and elliptic_soft, all three laws, with
-the residual weights, after it).
+[--channel-weights fixed|residual] [--name STEM]``. The README quotes
+``results/mujoco_fit_residual.md`` (``make bench``: twin, elliptic_soft and stiff, the two soft
+laws, residual weights; measured before the physics step resolved the fitted contact) and
+``results/mujoco_fit_stiff.md`` (stiff alone, with it). ``results/mujoco_fit.md`` (all five
+configurations, compliant and pyramid laws) and ``results/mujoco_fit_elliptic.md`` (the elliptic
+configurations, three laws) were measured with earlier soft laws and are kept as history.
 """
 from __future__ import annotations
 

@@ -437,3 +437,4 @@ def test_a_fit_from_shapes_starts_at_each_rounding_when_it_is_free_and_keeps_the
     fixed = ModelParameters.nominal().with_frozen(free=["mu_c"]).with_values(contact_rounding=0.01)
     assert fit_from_shapes(Objective(runs, fixed, Weights()), fake_fit).starts == ((0.01, (0.01 - 0.04) ** 2),)
     assert started == [0.01]  # a frozen shape is kept: one fit from it
+

@@ -57,7 +57,6 @@ import numpy as np
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
 from sysid.identification.intervals import Whiteness, sandwich_covariance, whiteness
-from integrators.simulator import contact_resolved
 from sysid.identification.objective import Objective
 
 
@@ -265,6 +264,12 @@ def _friction_row(params: ModelParameters) -> tuple[np.ndarray, float] | None:
     return (a, b) if np.any(a) else None
 
 
+#: Whole-run stages at most that :func:`fit_lsq` adds when its fitted soft contact takes another
+#: physics step than the one it was fitted at (a time constant that crosses the step rule's
+#: threshold back and forth is left at the last).
+STEP_STAGES = 2
+
+
 def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: float | None = None,
             horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, fd_step: float = FD_STEP, trust_radius: float = TRUST_RADIUS,
             cost_tol: float = 1e-3,
@@ -299,10 +304,11 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
         progress: called with (iteration, cost, seconds) after each Jacobian; iterations count
             on over the stages.
 
-    A soft contact fitted faster than the objective's step resolves
-    (:func:`integrators.simulator.contact_resolved`) gets one more whole-run stage at a step that
-    does, from where the last one ended; its simulations (``simulate_like``, an
-    :class:`Objective` built on the result) take that step by themselves.
+    With the objective's automatic step (``Objective(settings=None)``), a fit whose soft contact
+    ends on another step than it was fitted at (:func:`integrators.simulator.contact_resolved`:
+    at least four steps per time constant) gets a further whole-run stage at that step, from
+    where the last one ended (:data:`STEP_STAGES` at most): the values are fitted at the step
+    their later simulations (``simulate_like``, an :class:`Objective` built on them) take.
 
     Returns:
         FitResult with the fitted parameters, an iteration log (with each entry's horizon), a
@@ -342,12 +348,15 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     z = lm.z
     log.extend(lm.log)
     path.extend(lm.path)
-    finer = contact_resolved(objective.settings, params0.from_unit(z))
-    if finer != objective.settings:
-        # the fitted contact relaxes faster than the step resolves: the whole runs again at a step
-        # that does (the values, the intervals and every later simulation of them use it)
+    for _ in range(STEP_STAGES):
+        stepped = objective.stepped_for(params0.from_unit(z))
+        if stepped.settings == objective.settings:
+            break
+        # the fitted contact needs another step than the one fitted at (a soft contact at least four
+        # steps per time constant): the whole runs again at the step every later simulation of
+        # these values takes (simulate_like, an Objective built on them)
         done = objective.evaluations
-        objective = objective.with_settings(finer)
+        objective = stepped
         lm = _levenberg_marquardt(objective, z, max_iterations=max(max_iterations, 1),
                                   first_iteration=len({e.iteration for e in log}), evaluations_before=done, **settings)
         objective.evaluations += done

@@ -357,8 +357,11 @@ class Objective:
         runs: measured training runs.
         params: parameter set; its free parameters are the optimisation variables.
         weights: objective weights.
-        settings: simulator settings (default: :class:`SimSettings`' with a step that resolves
-            ``params``' soft contact, :func:`integrators.simulator.contact_resolved`).
+        settings: simulator settings (default: :class:`SimSettings`' with the step that resolves
+            ``params``' soft contact, :func:`integrators.simulator.contact_resolved`, the step
+            a :class:`~integrators.simulator.Simulator` of the same parameters takes: then
+            ``auto_step`` is True and :meth:`with_params` and :meth:`stepped_for` follow the
+            parameters' contact).
         executor: where parameter-vector chunks are evaluated (default: in-process).
         threads: threads of one batched evaluation (default: 2 in-process, 1 per worker
             process). Threads meet at a barrier every physics step, so use 1 when other
@@ -387,7 +390,8 @@ class Objective:
                                  f"none in {', '.join(missing)}")
         if self.model.urdf_path is None:
             raise InputError("the objective's model must come from a URDF file (worker processes load it)")
-        if self.settings is None:
+        self.auto_step = self.settings is None
+        if self.auto_step:
             self.settings = contact_resolved(SimSettings(), self.params)
         self.spec = ObjectiveSpec(tuple(RunTarget.of_run(r, self.settings, self.weights.sample_hz, self.model)
                                         for r in self.runs),
@@ -395,19 +399,31 @@ class Objective:
                                   None if self.model.urdf_path == DEFAULT_URDF.resolve() else self.model.urdf_path,
                                   threads=self.threads or (2 if self.executor.workers == 1 else 1))
 
-    def with_params(self, params: ModelParameters) -> "Objective":
-        """The same objective from ``params`` (its own evaluation count), its step refined if
-        ``params``' soft contact needs a shorter one (:func:`integrators.simulator.contact_resolved`)."""
-        return Objective(self.runs, params, self.weights, contact_resolved(self.settings, params), self.executor,
-                         self.threads, self.model)
+    @property
+    def _given_settings(self) -> SimSettings | None:
+        """The settings argument that rebuilds this objective's step rule (None: automatic)."""
+        return None if self.auto_step else self.settings
 
-    def with_settings(self, settings: SimSettings) -> "Objective":
-        """The same objective under other simulator ``settings`` (its own evaluation count)."""
-        return Objective(self.runs, self.params, self.weights, settings, self.executor, self.threads, self.model)
+    def with_params(self, params: ModelParameters) -> "Objective":
+        """The same objective from ``params`` (its own evaluation count; an automatic step is
+        ``params``' own)."""
+        return Objective(self.runs, params, self.weights, self._given_settings, self.executor, self.threads,
+                         self.model)
+
+    def stepped_for(self, params: ModelParameters) -> "Objective":
+        """The same objective (same start) at the step a simulator of ``params`` takes, if its
+        step is automatic; itself otherwise."""
+        if not self.auto_step:
+            return self
+        other = Objective(self.runs, self.params, self.weights, contact_resolved(SimSettings(), params),
+                          self.executor, self.threads, self.model)
+        other.auto_step = True
+        return other
 
     def with_weights(self, weights: Weights) -> "Objective":
         """The same objective under ``weights`` (its own evaluation count)."""
-        return Objective(self.runs, self.params, weights, self.settings, self.executor, self.threads, self.model)
+        return Objective(self.runs, self.params, weights, self._given_settings, self.executor, self.threads,
+                         self.model)
 
     def channel_residuals(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """The weighted residuals at ``x`` by channel: ``head`` (x and y of every run, the
@@ -445,7 +461,8 @@ class Objective:
 
     def on_runs(self, runs: Sequence[Run]) -> "Objective":
         """The same objective over ``runs`` instead (its own evaluation count)."""
-        return Objective(runs, self.params, self.weights, self.settings, self.executor, self.threads, self.model)
+        return Objective(runs, self.params, self.weights, self._given_settings, self.executor, self.threads,
+                         self.model)
 
     def truncated(self, seconds: float) -> "Objective":
         """The same objective over each run's first ``seconds`` [s] (its own evaluation count)."""
