@@ -209,7 +209,7 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "diagnose_matrix_soft_constraint": _matrix, "diagnose_matrix_choose": _matrix, "effect_signal": _signal,
     "diagnose_accuracy": _accuracy,
     "mujoco_robustness": _robustness,
-    "mujoco_robustness_stiff": _robustness, "mujoco_fit_residual": _mujoco_fit, "mujoco_fit_stiff": _mujoco_fit,
+    "mujoco_robustness_stiff": _robustness, "mujoco_fit_residual": _mujoco_fit,
     "contact_time_constant": _contact_time_constant,
     "contact_law": _contact_law,
     "coverage": _coverage, "fault_matrix": _faults,
@@ -223,7 +223,7 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 SOFT_LAWS_CHANGED_UTC = "2026-11-25T18:00"
 SOFT_LAWS_COMMIT = "5feff3c"
 SOFT_LAW_SOURCES = ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual",
-                    "mujoco_fit_stiff", "contact_law")
+                    "contact_law")
 
 
 def render() -> str:

@@ -52,10 +52,11 @@ Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--se
 [--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint,soft_elliptic]
 [--channel-weights fixed|residual] [--name STEM]``. The README quotes
 ``results/mujoco_fit_residual.md`` (``make bench``: twin, elliptic_soft and stiff, the two soft
-laws, residual weights; measured before the physics step resolved the fitted contact) and
-``results/mujoco_fit_stiff.md`` (stiff alone, with it). ``results/mujoco_fit.md`` (all five
-configurations, compliant and pyramid laws) and ``results/mujoco_fit_elliptic.md`` (the elliptic
-configurations, three laws) were measured with earlier soft laws and are kept as history.
+laws, residual weights; measured before the physics step resolved a fitted soft contact, which
+changes only fits ending below 4 ms: there the stiff configuration's elliptic-law fits).
+``results/mujoco_fit.md`` (all five configurations, compliant and pyramid laws) and
+``results/mujoco_fit_elliptic.md`` (the elliptic configurations, three laws) were measured with
+earlier soft laws and are kept as history.
 """
 from __future__ import annotations
 
