@@ -27,6 +27,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 import datetime as _dt
+import gc
 import math
 import os
 import signal
@@ -221,6 +222,24 @@ def _signals(handler: Any, signums: tuple[int, ...]) -> Iterator[Any]:
             signal.signal(s, h)
 
 
+@contextlib.contextmanager
+def _collector_frozen() -> Iterator[None]:
+    """Every object alive now out of the garbage collector's scans meanwhile (``gc.freeze``).
+
+    Why: a servo stops when it hears nothing for its Bus Watchdog time (100 ms in the example
+    configuration), and a full collection scans every tracked object: with this project's
+    libraries loaded (about 317 000 objects) one takes 143 ms on a 2-core machine, longer in a
+    process that holds more (a test session). Frozen, a collection during the recording scans
+    only what the recording itself allocated. Nothing is freed less: the frozen objects were
+    alive anyway, and they are handed back (``gc.unfreeze``) when the recording ends.
+    """
+    gc.freeze()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+
+
 def _uninterruptible() -> contextlib.AbstractContextManager[None]:
     """Ignore Ctrl-C and the terminating signals meanwhile, so torque off is not cut short."""
     return _signals(signal.SIG_IGN, (signal.SIGINT, *TERMINATING_SIGNALS))
@@ -321,7 +340,7 @@ def record_gait(config: BusConfig, gait: Gait, *, duration_s: float, out: str | 
             partial run with its note.
     """
     out_path = check_run_path(out, force=force)
-    with _signals(_TerminationHandler(), TERMINATING_SIGNALS) as handler:
+    with _signals(_TerminationHandler(), TERMINATING_SIGNALS) as handler, _collector_frozen():
         return _record(config, gait, duration_s, out_path, force, settle_s, progress or (lambda _msg: None), handler)
 
 

@@ -9,6 +9,7 @@ driver received (:func:`assert_holds_every_sample`).
 """
 from __future__ import annotations
 
+import gc
 import math
 import os
 import signal
@@ -351,6 +352,34 @@ def test_a_frozen_host_is_stopped_by_the_watchdog_and_told_so(tmp_path: Path, em
     run = read_run(result.path)
     assert_holds_every_sample(run, emu)
     assert run.meta["stop"]["status"] == "watchdog"
+
+
+class _CollectorWatch:
+    """The paper's gait, noting at each command how many objects the garbage collector leaves
+    out of its scans (``gc.get_freeze_count``)."""
+
+    def __init__(self) -> None:
+        self.frozen: list[int] = []
+
+    def q_ref(self, t: float) -> np.ndarray:
+        self.frozen.append(gc.get_freeze_count())
+        return GAIT.q_ref(t)
+
+    def to_json(self) -> dict[str, Any]:
+        return GAIT.to_json()
+
+
+def test_no_garbage_collection_pause_can_starve_the_watchdog(tmp_path: Path, emulators) -> None:
+    """A full collection over this process's objects outlasts the 100 ms Bus Watchdog (143 ms with
+    the project's libraries loaded, measured); during a recording every object alive before it
+    is frozen out of the scans, and handed back after."""
+    emulators.append(emu := start())
+    before = gc.get_freeze_count()
+    watch = _CollectorWatch()
+    result = record(emu, tmp_path / "gc.csv", duration_s=0.5, gait=watch)
+    assert result.status is StopReason.COMPLETED, result.message
+    assert watch.frozen and min(watch.frozen) > 1000
+    assert gc.get_freeze_count() == before
 
 
 def test_brownout_stops_with_torque_off(tmp_path: Path, emulators) -> None:
