@@ -349,7 +349,7 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     log.extend(lm.log)
     path.extend(lm.path)
     for _ in range(STEP_STAGES):
-        stepped = objective.stepped_for(params0.from_unit(z))
+        stepped = objective.with_params(params0.from_unit(z))  # the same free set, so the same z
         if stepped.settings == objective.settings:
             break
         # the fitted contact needs another step than the one fitted at (a soft contact at least four

@@ -360,8 +360,7 @@ class Objective:
         settings: simulator settings (default: :class:`SimSettings`' with the step that resolves
             ``params``' soft contact, :func:`integrators.simulator.contact_resolved`, the step
             a :class:`~integrators.simulator.Simulator` of the same parameters takes: then
-            ``auto_step`` is True and :meth:`with_params` and :meth:`stepped_for` follow the
-            parameters' contact).
+            ``auto_step`` is True and :meth:`with_params` follows the parameters' contact).
         executor: where parameter-vector chunks are evaluated (default: in-process).
         threads: threads of one batched evaluation (default: 2 in-process, 1 per worker
             process). Threads meet at a barrier every physics step, so use 1 when other
@@ -409,16 +408,6 @@ class Objective:
         ``params``' own)."""
         return Objective(self.runs, params, self.weights, self._given_settings, self.executor, self.threads,
                          self.model)
-
-    def stepped_for(self, params: ModelParameters) -> "Objective":
-        """The same objective (same start) at the step a simulator of ``params`` takes, if its
-        step is automatic; itself otherwise."""
-        if not self.auto_step:
-            return self
-        other = Objective(self.runs, self.params, self.weights, contact_resolved(SimSettings(), params),
-                          self.executor, self.threads, self.model)
-        other.auto_step = True
-        return other
 
     def with_weights(self, weights: Weights) -> "Objective":
         """The same objective under ``weights`` (its own evaluation count)."""
