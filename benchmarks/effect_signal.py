@@ -37,12 +37,12 @@ from benchmarks._args import number_list  # noqa: E402
 from benchmarks.diagnose_matrix import ENGINES, EVAL_SEEDS, MUJOCO_OPTIONS, NEAR_LIMIT, Job, make_runs  # noqa: E402
 from cobra_model import CobraModel  # noqa: E402
 from cobra_model.run import Run  # noqa: E402
-from cobra_model.servo import PULSES_PER_REV  # noqa: E402
+from sysid.identification.objective import SENSOR_NOISE  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.generators.dataset import MOCAP_NOISE_M  # noqa: E402
 
 #: RMS of the encoders' quantisation error [rad]: one count, uniformly distributed.
-ENCODER_FLOOR_RAD = 2 * np.pi / PULSES_PER_REV / np.sqrt(12)
+ENCODER_FLOOR_RAD = SENSOR_NOISE["joints"]
 #: RMS of the motion capture's error on one planar (x, y) head position [m].
 HEAD_FLOOR_M = MOCAP_NOISE_M * np.sqrt(2)
 DURATION_S = 3.0

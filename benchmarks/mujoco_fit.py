@@ -75,11 +75,10 @@ from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulate import simulate_like
 from integrators.simulator import STEPS_PER_CONTACT_TIME_CONSTANT
-from cobra_model.servo import PULSES_PER_REV
 from sysid.generators.dataset import RunPlan
 from sysid.identification.contact_choice import LAW_FREE, choose_contact_law
 from sysid.identification.lsq import fit_lsq, refit_by_residual
-from sysid.identification.objective import Objective
+from sysid.identification.objective import SENSOR_NOISE, Objective
 from sysid.gap.metrics import compare_runs
 from sysid.generators.mujoco_recording import describe, record_mujoco, stiff_contact, twin_options
 
@@ -94,7 +93,7 @@ VALIDATION_TURN_RAD = 0.5
 #: Added to a case's seed for its validation runs' noise (the training and held-out runs keep theirs).
 VALIDATION_SEED_OFFSET = 10_000
 #: Joint-angle noise floor [rad]: the RMS of the encoders' rounding error.
-JOINT_FLOOR_RAD = 2 * np.pi / PULSES_PER_REV / np.sqrt(12)
+JOINT_FLOOR_RAD = SENSOR_NOISE["joints"]
 HEAD_BOUND_M = 0.05
 JOINT_BOUND_FACTOR = 1.5
 

@@ -29,6 +29,7 @@ from integrators import mujoco_twin
 from integrators.batch import BatchSimulator
 from integrators.simulator import SimSettings, Simulator, contact_resolved
 from sysid.generators.mujoco_recording import rollout, twin_counterpart, twin_options
+from sysid.identification.objective import SENSOR_NOISE
 
 def soft(params: ModelParameters) -> ModelParameters:
     """``params`` under the soft-constraint law."""
@@ -296,7 +297,7 @@ def test_on_mujocos_stiff_contact_the_resolved_step_follows_mujocos_joints(cobra
         q = sim.rollout(sim.state(q0), gait.q_ref, duration, record_every=int(round(every / sim.settings.dt))).q
         n, start = min(len(q), len(qm)), int(round(1.0 / every))            # after the gait's smooth start
         rms[name] = float(np.sqrt(np.mean((q[start:n, 7:] - qm[start:n, 7:]) ** 2)))
-    floor = 2 * np.pi / 4096 / np.sqrt(12)
+    floor = SENSOR_NOISE["joints"]
     assert rms["1 ms"] > 2.5 * floor, rms
     assert rms["resolved"] <= 1.5 * floor, rms
 
