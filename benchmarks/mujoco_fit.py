@@ -76,7 +76,7 @@ from integrators.mujoco_twin import TwinOptions
 from integrators.simulate import simulate_like
 from integrators.simulator import STEPS_PER_CONTACT_TIME_CONSTANT
 from sysid.generators.dataset import RunPlan
-from sysid.identification.contact_choice import LAW_FREE, choose_contact_law
+from sysid.identification.contact_choice import LAW_FREE, SCREEN_HORIZON_S, WHOLE_RUN_FITS, choose_contact_law
 from sysid.identification.lsq import fit_lsq, refit_by_residual
 from sysid.identification.objective import SENSOR_NOISE, Objective
 from sysid.gap.metrics import compare_runs
@@ -190,7 +190,9 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
 
 def markdown(rows: list[dict], meta: dict) -> str:
     """The per-gait table, the pass counts and the interval coverage."""
-    starts = [s for s, _ in rows[0]["choice"]["fits"][0]["train_cost_by_rounding_start"]]
+    starts = sorted({s["contact_rounding"] for f in rows[0]["choice"]["fits"] for s in f["starts"]})
+    stiffness = sorted({s["contact_time_constant"] for f in rows[0]["choice"]["fits"] for s in f["starts"]
+                        if "contact_time_constant" in s})
     steps = sorted({r["step_s"] for r in rows if r.get("step_s")})
     chosen_steps = f" (the chosen fits' steps: {', '.join(f'{1e3 * s:g}' for s in steps)} ms)" if steps else ""
     residual = meta["channel_weights"] == "residual"
@@ -203,7 +205,10 @@ def markdown(rows: list[dict], meta: dict) -> str:
              f"{meta['holdout_duration_s']:g} s turned by {HOLDOUT_TURN_RAD:g} rad; "
              f"{meta['iterations_per_stage']} Jacobians per stage at most; each contact law fitted with its "
              f"own free parameters ({'; '.join(f'{law}: ' + ', '.join(free) for law, free in meta['free'].items())}) "
-             f"from contact_rounding {', '.join(f'{s:g}' for s in starts)} m (the lowest training cost kept), "
+             f"from contact_rounding {', '.join(f'{s:g}' for s in starts)} m"
+             + (f" and, under a soft law, contact_time_constant {', '.join(f'{1e3 * s:g}' for s in stiffness)} ms "
+                f"(each start screened on the first {SCREEN_HORIZON_S:g} s, the {WHOLE_RUN_FITS} lowest fitted on "
+                f"the whole runs)" if stiffness else "") + " (the lowest training cost kept), "
              f"the law with the lower cost on three validation runs chosen{refit}; physics step 1 ms, or the "
              f"fraction of it that gives a fitted soft contact {STEPS_PER_CONTACT_TIME_CONSTANT} steps per time "
              f"constant{chosen_steps}. Bounds: held-out final head error "

@@ -121,11 +121,12 @@ def run(args: argparse.Namespace) -> int:
 
     choice = None
     if args.method == "lsq":
-        from sysid.identification.contact_choice import choose_contact_law, fit_from_shapes, shape_starts
+        from sysid.identification.contact_choice import choose_contact_law, fit_count, fit_from_shapes
         from sysid.identification.lsq import fit_lsq, refit_by_residual
-        # contact_rounding free: one fit from each shape of the module ends, the lowest cost kept;
-        # the budget is shared by every fit (each shape, each law, the refit)
-        fits = sum(max(1, len(shape_starts(p))) for p in starts.values()) + (args.channel_weights == "residual")
+        # contact_rounding (and a soft law's time constant) free: fits from each shape of the module
+        # ends (and a soft and a stiff ground), the lowest cost kept; the budget is shared by every
+        # fit (each start's screen and whole-run fit, each law, the refit)
+        fits = sum(fit_count(p) for p in starts.values()) + (args.channel_weights == "residual")
         budget = args.budget_seconds / fits if args.budget_seconds is not None else None
 
         def lsq(o: Objective) -> FitResult:
@@ -144,8 +145,11 @@ def run(args: argparse.Namespace) -> int:
                                      label="fitting", progress=lambda line: bar.write(line))
             result, shapes_starts = shapes.best, shapes.starts
         if len(shapes_starts) > 1:
-            print("training cost from each starting contact_rounding: "
-                  + ", ".join(f"{r0:g} m -> {cost:.4g}" for r0, cost in shapes_starts))
+            print("training cost from each start (screened on the first seconds, then the whole runs):")
+            for one in shapes_starts:
+                print(f"  {one.describe():55s} "
+                      + (f"screen {one.screen_cost:.4g}  " if one.screen_cost is not None else "")
+                      + (f"whole runs {one.cost:.4g}" if one.cost is not None else "(not kept)"))
         if args.channel_weights == "residual":
             result = refit_by_residual(Objective(train, result.params, weights, executor=executor), result, lsq)
             scales = result.extra["channel_scales"]

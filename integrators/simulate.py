@@ -136,6 +136,9 @@ def trajectory_to_run(model: CobraModel, traj: Trajectory, t_out: np.ndarray | N
             "head_pos": heads, "head_quat": quat}
     if t_out is not None:
         t_out = np.asarray(t_out, dtype=float)
+        if t_out.size and (t_out[0] < t[0] - 1e-9 or t_out[-1] > t[-1] + 1e-9):
+            raise ValueError(f"sample times {t_out[0]:.4f}..{t_out[-1]:.4f} s reach outside the simulated "
+                             f"{t[0]:.4f}..{t[-1]:.4f} s (the nearest record would be held)")
         interp = lambda a: np.column_stack([np.interp(t_out, t, a[:, j]) for j in range(a.shape[1])])  # noqa: E731
         cols = {k: interp(a) for k, a in cols.items()}
         cols["head_quat"] /= np.linalg.norm(cols["head_quat"], axis=1, keepdims=True)
@@ -206,8 +209,16 @@ def command_ticks(run: Run, control_dt: float) -> np.ndarray:
 
 def rollout_like(sim: Simulator, run: Run, *, record_every: int | None = None,
                  progress: Callable[[float], None] | None = None) -> Trajectory:
-    """Roll the simulator out over the run's span with its commands (interpolated onto the ticks)."""
+    """Roll the simulator out over the run's span with its commands (interpolated onto the ticks).
+
+    The rollout goes on to the first recorded sample at or after the run's last time (less than
+    one record period more, the last command held), so that every sample time of the run lies
+    inside the recorded span: a log's times jitter, and a last sample between two records would
+    otherwise be read from the earlier one (20 ms old at 50 Hz: 60 mrad on a yaw joint at 0.5 Hz).
+    """
     t0, t1 = float(run.t[0]), float(run.t[-1])
     table = command_ticks(run, sim.settings.control_dt)
     every = record_every or max(1, int(round(max(run.dt_median, sim.settings.dt) / sim.settings.dt)))
-    return sim.rollout(start_state(sim, run), table, t1 - t0, record_every=every, progress=progress)
+    period = every * sim.settings.dt
+    duration = np.ceil((t1 - t0) / period - 1e-9) * period
+    return sim.rollout(start_state(sim, run), table, duration, record_every=every, progress=progress)

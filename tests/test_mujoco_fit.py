@@ -20,11 +20,11 @@ from cobra_model import design
 from cobra_model.parameters import ModelParameters
 from integrators.simulate import simulate_like
 from sysid.generators.dataset import RunPlan
-from sysid.identification.contact_choice import choose_contact_law
+from sysid.identification.contact_choice import LAW_FREE, choose_contact_law, fit_from_shapes
 from sysid.identification.lsq import fit_lsq
 from sysid.gap.metrics import compare_runs
 from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_options
-from sysid.identification.objective import Objective, Weights
+from sysid.identification.objective import SENSOR_NOISE, Objective, Weights
 
 pytestmark = pytest.mark.slow
 mujoco = pytest.importorskip("mujoco")
@@ -83,15 +83,28 @@ def stiff_case(cobra):
 
 
 @pytest.fixture(scope="module")
+def stiff_soft_case(cobra):
+    """MuJoCo's stiff contact (2 ms) fitted with the soft-constraint law from capsule ends (MuJoCo's
+    shape; the search over shapes is the default case's) on a soft (20 ms, nominal) and the
+    stiffest (2 ms) ground, both screened on the first 1.5 s and the lower fitted on the whole runs."""
+    train, hold, _ = runs_of(cobra, stiff_contact)
+    start = ModelParameters.nominal().with_contact_law("soft_constraint").with_frozen(free=LAW_FREE["soft_constraint"])
+    shapes = fit_from_shapes(Objective(train, start, Weights()), fit, rounding_starts=(design.MODULE_RADIUS_M,),
+                             whole_run_fits=1)
+    return shapes, gaps_of(hold, {"fitted": shapes.best.params})
+
+
+@pytest.fixture(scope="module")
 def elliptic_case(cobra):
     """On MuJoCo's elliptic friction cone with a softer (40 ms) contact, ``benchmarks/mujoco_fit.py``'s
     ``elliptic_soft`` configuration: the two soft-constraint laws fitted, one chosen on three
     validation runs. Each law's fit starts from capsule ends only (MuJoCo's; the search over the
-    ends' shape is the default case's), which keeps this test to two fits."""
+    ends' shape is the default case's) and goes on to the whole runs from the better of its soft
+    and stiff ground's screens, which keeps this test to two whole-run fits."""
     train, hold, options = runs_of(cobra, lambda twin: dataclasses.replace(twin, cone="elliptic", solref=(0.04, 1.0)))
     valid = record(cobra, options, np.random.default_rng(5 + 10_000), "v", 3.0, (-0.5, 0.5), 0.8)
     choice = choose_contact_law(train, valid, ModelParameters.nominal(), laws=("soft_constraint", "soft_elliptic"),
-                                rounding_starts=(design.MODULE_RADIUS_M,), fit=fit)
+                                rounding_starts=(design.MODULE_RADIUS_M,), fit=fit, whole_run_fits=1)
     return choice, gaps_of(hold, {f.law: f.fit.params for f in choice.fits})
 
 
@@ -166,3 +179,28 @@ def test_on_mujocos_stiff_contact_the_held_out_head_error_is_within_5_cm(stiff_c
     assert mu_c.ci_low <= 0.24 <= mu_c.ci_high and mu_c.ci_high - mu_c.ci_low <= 0.2, mu_c
     # MuJoCo carries a sustained load almost rigidly: the ground stiffness ends on its bound, and says so
     assert "k1" in {r.name for r in fit.report if r.at_bound}
+
+
+def test_on_mujocos_stiff_contact_the_soft_law_starts_on_a_stiff_ground_and_finds_it(stiff_soft_case):
+    """A fit of the soft law from MuJoCo's default 20 ms alone stops at 8-10 ms on this
+    configuration (the cost along the time constant is rough on a stiff ground; on these runs
+    10.2 ms, held-out joints 1.07-1.45 mrad, 2.4-3.3 times the encoders' floor). The start on the
+    stiffest ground screens lower on the first 1.5 s (measured 0.90 against 9.7), is the one
+    fitted on the whole runs, and ends near MuJoCo's values (measured: time constant 2.6 ms,
+    damping 0.163, ``mu_c`` 0.2406, rounding 0.0448 m), with held-out heads within 5 cm
+    (0.5-0.6 cm) and joints at 0.68 / 0.60 / 0.66 mrad at 0.35 / 0.5 / 0.65 Hz from these 3 s
+    training runs (issue 16's bar, 1.5x the encoders' floor, is 0.66 mrad; the benchmark's 6 s
+    runs report it). Asserted: within twice the floor, which the soft ground's basin does not
+    meet."""
+    shapes, gaps = stiff_soft_case
+    soft, stiff = sorted(shapes.starts, key=lambda s: -s.values["contact_time_constant"])
+    assert stiff.values["contact_time_constant"] == 0.002 and stiff.screen_cost < soft.screen_cost, shapes.starts
+    assert stiff.cost is not None and soft.cost is None
+    fitted = shapes.best.params
+    assert fitted.contact_time_constant <= 0.004, fitted          # MuJoCo's solref[0] 0.002 s
+    assert abs(fitted.joint_damping - 0.16) <= 0.016 and abs(fitted.mu_c - 0.24) <= 0.024, fitted
+    assert fitted.contact_rounding > 0.9 * design.MODULE_RADIUS_M  # MuJoCo's capsule ends
+    heads = [g["head_final_error_m"] for g in gaps["fitted"]]
+    joints = [g["joint_rmse_rad"]["mean"] for g in gaps["fitted"]]
+    assert max(heads) <= 0.05, heads
+    assert max(joints) <= 2 * SENSOR_NOISE["joints"], joints

@@ -431,11 +431,50 @@ def test_a_fit_from_shapes_starts_at_each_rounding_when_it_is_free_and_keeps_the
 
     free = ModelParameters.nominal().with_frozen(free=["mu_c", "contact_rounding"])
     shapes = fit_from_shapes(Objective(runs, free, Weights()), fake_fit)
-    assert started == list(ROUNDING_STARTS_M)
+    assert started == list(ROUNDING_STARTS_M)                           # three starts: no screen
     assert shapes.best.params.contact_rounding == ROUNDING_STARTS_M[-1]  # 0.045 m is nearest 0.04 m
-    assert shapes.seconds == 3.0 and [s[0] for s in shapes.starts] == list(ROUNDING_STARTS_M)
+    assert shapes.seconds == 3.0 and [s.values["contact_rounding"] for s in shapes.starts] == list(ROUNDING_STARTS_M)
+    assert all(s.screen_cost is None for s in shapes.starts)
     started.clear()
     fixed = ModelParameters.nominal().with_frozen(free=["mu_c"]).with_values(contact_rounding=0.01)
-    assert fit_from_shapes(Objective(runs, fixed, Weights()), fake_fit).starts == ((0.01, (0.01 - 0.04) ** 2),)
+    (only,) = fit_from_shapes(Objective(runs, fixed, Weights()), fake_fit).starts
+    assert only.values == {} and only.cost == (0.01 - 0.04) ** 2
     assert started == [0.01]  # a frozen shape is kept: one fit from it
 
+
+def test_a_soft_law_fit_starts_on_a_soft_and_the_stiffest_ground_and_screens_the_starts_on_the_first_seconds():
+    """Under a soft law with the time constant free, the starts are every shape on the nominal
+    (20 ms) and the stiffest (2 ms, the bound) ground; all six are fitted on the first 1.5 s and
+    the three lowest go on to the whole runs, each from where its screen ended. The stand-in fit's
+    cost has its minimum at a stiff ground with rounded ends (on the screen's horizon too)."""
+    from types import SimpleNamespace
+
+    from cobra_model.run_files import read_run
+    from sysid.identification.contact_choice import SCREEN_HORIZON_S, fit_count, fit_from_shapes, fit_starts
+    from sysid.identification.objective import Objective, Weights
+
+    runs = [read_run(Path(__file__).resolve().parent.parent / "data" / "reference" / "run_02_0p50hz.csv")]
+    calls = []
+
+    def fake_fit(objective):
+        p = objective.params
+        horizon = max(float(r.t[-1] - r.t[0]) for r in objective.runs)
+        calls.append((round(horizon, 2), p.contact_time_constant, p.contact_rounding, p.mu_c))
+        cost = (p.contact_rounding - 0.04) ** 2 + (np.log(p.contact_time_constant / 0.003)) ** 2
+        return SimpleNamespace(cost=cost, seconds=1.0, params=p.with_values(mu_c=p.mu_c + 0.01))  # where it ends
+
+    free = ModelParameters.nominal().with_contact_law("soft_constraint").with_frozen(
+        free=["mu_c", "contact_time_constant", "contact_rounding"])
+    assert len(fit_starts(free)) == 6 and fit_count(free) == 9
+    shapes = fit_from_shapes(Objective(runs, free, Weights()), fake_fit)
+    mu0 = free.mu_c
+    screens, wholes = calls[:6], calls[6:]
+    assert all(h == pytest.approx(SCREEN_HORIZON_S, abs=0.03) and mu == mu0 for h, _, _, mu in screens)
+    assert sorted((tc, r) for _, tc, r, _ in screens) == [(tc, r) for tc in (0.002, 0.02) for r in (0.0, 0.0225, 0.045)]
+    # the three lowest screens are the stiff ground's; each goes on from where its screen ended
+    assert sorted((tc, r) for _, tc, r, _ in wholes) == [(0.002, r) for r in (0.0, 0.0225, 0.045)]
+    assert all(h > 2 * SCREEN_HORIZON_S and mu == pytest.approx(mu0 + 0.01) for h, _, _, mu in wholes)
+    assert shapes.best.params.contact_rounding == 0.045 and shapes.best.params.mu_c == pytest.approx(mu0 + 0.02)
+    assert shapes.seconds == 9.0
+    assert [s.cost is not None for s in shapes.starts] == [False] * 3 + [True] * 3
+    assert all(s.screen_cost is not None for s in shapes.starts)

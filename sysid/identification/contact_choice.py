@@ -18,6 +18,20 @@ module (from the rim of the end circle to the rounded cap), which changes the le
 ground forces at once, so the cost has a basin per shape and a local fit can stay in the one it
 starts in (on MuJoCo's runs the soft-constraint law's fits end within 1.5 cm of their starting
 rounding, from 0, 2.25 and 4.5 cm alike; the compliant law's mostly reach 4.5 cm from any start).
+
+A soft law's fit also starts from both ends of the ground's stiffness (:func:`stiffness_starts`):
+a soft ground (its time constant's nominal 20 ms, MuJoCo's default) and the stiffest the law
+represents (the lower bound, 2 ms). A softer ground sinks the body and moves its contacts as a
+sharper end does, so stiffness and shape trade off in a curved valley, and on a stiff ground the
+head path over seconds makes the cost rough along it (on MuJoCo's 2 ms runs, dev seed 5, the
+training cost along the time constant alone went 46, 33, 58 from 5.2 to 4.5 to 4 ms): a fit
+from 20 ms stopped at 8-10 ms whatever its rounding (joints 1.3-1.5 mrad), one from 2 ms at
+4.5 cm reached 2.4 ms (joints 0.56-0.66 mrad). Which starts earn a whole-run fit is screened on
+the first horizon of the fit's continuation (:data:`SCREEN_HORIZON_S`, where the residuals are
+nearly linear in the parameters): every start is fitted there, and only the
+:data:`WHOLE_RUN_FITS` lowest go on, so the whole-run fits stay as many as the shapes (on the
+same dev cases the screen's order put the basin that the whole fits found best first: stiff
+0.84 against 2.7-11, twin 0.97 against 2.1-24).
 """
 from __future__ import annotations
 
@@ -30,7 +44,7 @@ from cobra_model.parameters import CONTACT_LAWS, ModelParameters
 from cobra_model.run import Run
 from integrators.kernels import CONTACT_LAW_PARAMETERS, SOFT_LAWS
 from sysid.identification.executor import Executor, LocalExecutor
-from sysid.identification.lsq import FitResult, fit_lsq
+from sysid.identification.lsq import DEFAULT_HORIZONS_S, FitResult, fit_lsq
 from sysid.identification.objective import Objective, Weights
 
 #: Free parameters of each law's base fit: the actuator's damping and motor constant, and the
@@ -70,14 +84,23 @@ def free_for_law(params: ModelParameters) -> tuple[ModelParameters, str | None]:
     return adapted, f"{params.contact_law} contact law: {'; '.join(parts)}"
 
 
-@dataclass(frozen=True)
-class ShapeFits:
-    """The fit with the lowest training cost over the starting shapes of the module ends, the
-    training cost reached from each starting ``contact_rounding`` [m], and the seconds of all."""
+#: Whole-run fits at most per law: the starts with the lowest cost after :data:`SCREEN_HORIZON_S`
+#: go on (as many as the shapes of the ends, so a second stiffness adds only screening).
+WHOLE_RUN_FITS = len(ROUNDING_STARTS_M)
 
-    best: FitResult
-    starts: tuple[tuple[float, float], ...]
-    seconds: float
+#: Horizon [s] on which every start is fitted first, to rank them: the first stage of
+#: :func:`sysid.identification.lsq.fit_lsq`'s continuation.
+SCREEN_HORIZON_S = DEFAULT_HORIZONS_S[0]
+
+
+def stiffness_starts(params: ModelParameters) -> tuple[float, ...]:
+    """The ``contact_time_constant`` values [s] a fit of ``params`` starts from: its own value (the
+    nominal 20 ms: a soft ground) and the law's stiffest (the parameter's lower bound) when it is
+    free; none when it is frozen (module docstring)."""
+    if "contact_time_constant" not in params.free_names:
+        return ()
+    own, stiffest = float(params.contact_time_constant), float(params["contact_time_constant"].min)
+    return (own, stiffest) if own != stiffest else (own,)
 
 
 def shape_starts(params: ModelParameters, rounding_starts: Sequence[float] = ROUNDING_STARTS_M) -> tuple[float, ...]:
@@ -86,48 +109,106 @@ def shape_starts(params: ModelParameters, rounding_starts: Sequence[float] = ROU
     return tuple(rounding_starts) if "contact_rounding" in params.free_names else ()
 
 
+def fit_starts(params: ModelParameters, rounding_starts: Sequence[float] = ROUNDING_STARTS_M) -> list[dict[str, float]]:
+    """The starting values a fit of ``params`` runs from: every shape of the ends
+    (:func:`shape_starts`) with every stiffness (:func:`stiffness_starts`), stiffness outermost;
+    one empty start (``params`` itself) when neither is free."""
+    shapes = [{"contact_rounding": r} for r in shape_starts(params, rounding_starts)] or [{}]
+    stiffnesses = [{"contact_time_constant": tc} for tc in stiffness_starts(params)] or [{}]
+    return [{**tc, **r} for tc in stiffnesses for r in shapes]
+
+
+def fit_count(params: ModelParameters, rounding_starts: Sequence[float] = ROUNDING_STARTS_M) -> int:
+    """How many fits :func:`fit_from_shapes` runs at most for ``params`` (screens and whole-run fits)."""
+    n = len(fit_starts(params, rounding_starts))
+    return n + WHOLE_RUN_FITS if n > WHOLE_RUN_FITS else n
+
+
+@dataclass(frozen=True)
+class StartFit:
+    """One start of :func:`fit_from_shapes`: its starting ``values``, its cost after the screen
+    on the first :data:`SCREEN_HORIZON_S` (None when not screened) and its whole-run training
+    cost (None when the screen did not keep it)."""
+
+    values: Mapping[str, float]
+    screen_cost: float | None
+    cost: float | None
+
+    def to_json(self) -> dict:
+        return {**self.values, "screen_cost": self.screen_cost, "train_cost": self.cost}
+
+    def describe(self) -> str:
+        """``contact_rounding 0.045 m, contact_time_constant 0.002 s``, or ``its own start``."""
+        units = {"contact_rounding": "m", "contact_time_constant": "s"}
+        return ", ".join(f"{n} {v:g} {units[n]}" for n, v in self.values.items()) or "its own start"
+
+
+@dataclass(frozen=True)
+class ShapeFits:
+    """The fit with the lowest training cost over the starts, every start's screen and whole-run
+    cost, and the seconds of all its fits."""
+
+    best: FitResult
+    starts: tuple[StartFit, ...]
+    seconds: float
+
+
 def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult] = fit_lsq,
                     rounding_starts: Sequence[float] = ROUNDING_STARTS_M, label: str = "fitting",
-                    progress: Callable[[str], None] | None = None) -> ShapeFits:
-    """``fit`` of ``objective`` from each of ``rounding_starts``, the lowest training cost kept,
-    when its parameters' ``contact_rounding`` is free; one fit from its own start when it is not
-    (or when no starts are given).
+                    progress: Callable[[str], None] | None = None,
+                    whole_run_fits: int = WHOLE_RUN_FITS) -> ShapeFits:
+    """``fit`` of ``objective`` from each of its starts (:func:`fit_starts`: the shapes of the
+    module ends and, under a soft law, a soft and a stiff ground), the lowest training cost kept;
+    one fit from its own start when neither shape nor stiffness is free.
 
-    Why several: the ends' rounding moves every contact point along its module, which changes
-    the lever arms of all ground forces at once, so the cost has a basin per shape and a local
-    fit stays in the one it starts in (module docstring). ``progress`` gets ``label`` and the
-    starting rounding of each fit.
+    With more starts than ``whole_run_fits``, each is first fitted on the runs' first
+    :data:`SCREEN_HORIZON_S` and only the ``whole_run_fits`` lowest of those go on, each from
+    where its screen ended (module docstring: why several starts, why the screen).
+    ``progress`` gets ``label`` and each start.
     """
     start = objective.params
-    starts = shape_starts(start, rounding_starts)
-    if not starts:
-        result = fit(objective)
-        return ShapeFits(result, ((float(start.contact_rounding), result.cost),), result.seconds)
-    results = []
-    for r0 in starts:
+    starts = fit_starts(start, rounding_starts)
+    longest = max(float(r.t[-1] - r.t[0]) for r in objective.runs)
+    screen = len(starts) > whole_run_fits and longest > SCREEN_HORIZON_S
+    seconds = 0.0
+    screened: list[FitResult | None] = [None] * len(starts)
+    if screen:
+        for k, values in enumerate(starts):
+            if progress is not None:
+                progress(f"{label}: screening the start {StartFit(values, None, None).describe()} on the first "
+                         f"{SCREEN_HORIZON_S:g} s")
+            screened[k] = fit(objective.with_params(start.with_values(**values)).truncated(SCREEN_HORIZON_S))
+            seconds += screened[k].seconds
+        kept = sorted(range(len(starts)), key=lambda k: screened[k].cost)[:whole_run_fits]
+    else:
+        kept = list(range(len(starts)))
+    whole: dict[int, FitResult] = {}
+    for k in sorted(kept):
         if progress is not None:
-            progress(f"{label} from contact_rounding {r0:g} m")
-        results.append(fit(objective.with_params(start.with_values(contact_rounding=r0))))
-    return ShapeFits(min(results, key=lambda r: r.cost),
-                     tuple((float(r0), r.cost) for r0, r in zip(starts, results)),
-                     sum(r.seconds for r in results))
+            progress(f"{label} from {StartFit(starts[k], None, None).describe()}")
+        from_here = screened[k].params if screened[k] is not None else start.with_values(**starts[k])
+        whole[k] = fit(objective.with_params(from_here))
+        seconds += whole[k].seconds
+    records = tuple(StartFit(values, screened[k].cost if screened[k] is not None else None,
+                             whole[k].cost if k in whole else None) for k, values in enumerate(starts))
+    return ShapeFits(min(whole.values(), key=lambda r: r.cost), records, seconds)
 
 
 @dataclass(frozen=True)
 class LawFit:
     """One contact law's fit (its parameters carry the law; the lowest training cost over the
-    starts), its cost on the held-out runs (the objective's, same weights), the training cost
-    reached from each starting ``contact_rounding`` [m] and the seconds of all its starts' fits."""
+    starts), its cost on the held-out runs (the objective's, same weights), each start's screen
+    and training cost (:class:`StartFit`) and the seconds of all its starts' fits."""
 
     law: str
     fit: FitResult
     held_out_cost: float
-    starts: tuple[tuple[float, float], ...]
+    starts: tuple[StartFit, ...]
     seconds: float
 
     def to_json(self) -> dict:
         return {"law": self.law, "held_out_cost": self.held_out_cost, "train_cost": self.fit.cost,
-                "train_cost_by_rounding_start": [list(s) for s in self.starts],
+                "starts": [s.to_json() for s in self.starts],
                 "status": self.fit.status.value, "seconds": self.fit.seconds, "seconds_all_starts": self.seconds,
                 "params": {n: self.fit.params.value(n) for n in self.fit.params.free_names}}
 
@@ -153,7 +234,8 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
                        rounding_starts: Sequence[float] = ROUNDING_STARTS_M,
                        fit: Callable[[Objective], FitResult] = fit_lsq,
                        starts: Mapping[str, ModelParameters] | None = None, executor: Executor | None = None,
-                       progress: Callable[[str], None] | None = None) -> ContactChoice:
+                       progress: Callable[[str], None] | None = None,
+                       whole_run_fits: int = WHOLE_RUN_FITS) -> ContactChoice:
     """Fit each contact law on ``train`` and choose the one with the lowest cost on ``held_out``.
 
     Args:
@@ -162,7 +244,8 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
         start: the starting parameters (default nominal); each law frees :data:`LAW_FREE`.
         laws: the laws to try (default all of :data:`cobra_model.parameters.CONTACT_LAWS`).
         weights: the objective's weights for fitting and choosing.
-        rounding_starts: the ``contact_rounding`` values [m] each law's fit starts from (the lowest
+        rounding_starts: the ``contact_rounding`` values [m] each law's fit starts from, a soft
+            law's from a soft and a stiff ground each (:func:`fit_from_shapes`; the lowest
             training cost is kept).
         fit: the fitting method (default least squares with its defaults).
         starts: per law, its starting parameters with their free set (overriding ``start`` and
@@ -170,6 +253,7 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
             the data check left each law).
         executor: where the objectives' evaluations run (default in-process).
         progress: called with a line per law.
+        whole_run_fits: per law, the screened starts that go on to a whole-run fit.
 
     Raises:
         InputError: without held-out runs, naming an unknown law, or without rounding starts.
@@ -192,7 +276,7 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
             raise InputError(f"starts[{law!r}] is under the {law_start.contact_law} contact law")
         shapes = fit_from_shapes(Objective(train, law_start, weights, executor=executor), fit, rounding_starts,
                                  f"fitting the {law} contact law ({len(law_start.free_names)} free parameters)",
-                                 progress)
+                                 progress, whole_run_fits)
         result = shapes.best
         held = Objective(held_out, result.params, weights, executor=executor)(result.params.as_vector())
         fits.append(LawFit(law, result, float(held), shapes.starts, shapes.seconds))
