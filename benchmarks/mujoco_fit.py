@@ -30,7 +30,10 @@ Per configuration x seed x heading ``h``: three training runs (0.35/0.5/0.65 Hz,
 ``--train-duration`` s, heading ``h``) and three held-out runs (same gaits,
 ``--holdout-duration`` s, heading ``h + 1 rad``), measured like the reference dataset (50 Hz
 quantised encoders, mocap noise and dropouts; noise drawn from the seed). Each fit is
-``cobra fit --method lsq``'s (:func:`sysid.identification.lsq.fit_lsq`) from the nominal model.
+``cobra fit --method lsq``'s (:func:`sysid.identification.lsq.fit_lsq`) from the nominal model,
+from each shape of the module ends and, under a soft law, on a soft (20 ms) and the stiffest
+(2 ms) ground, the starts screened on the first 1.5 s
+(:func:`sysid.identification.contact_choice.fit_from_shapes`).
 Per held-out gait the table gives the final head error of the nominal model, of each law's fit
 and of the chosen one, and the chosen fit's joint RMSE against the floor
 (``2 pi / 4096 / sqrt 12`` [rad]: the encoders' quantisation, the only noise on the joint log;
@@ -52,8 +55,7 @@ Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--se
 [--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint,soft_elliptic]
 [--channel-weights fixed|residual] [--name STEM]``. The README quotes
 ``results/mujoco_fit_residual.md`` (``make bench``: twin, elliptic_soft and stiff, the two soft
-laws, residual weights; measured before the physics step resolved a fitted soft contact, which
-changes only fits ending below 4 ms: there the stiff configuration's elliptic-law fits).
+laws, residual weights).
 ``results/mujoco_fit.md`` (all five configurations, compliant and pyramid laws) and
 ``results/mujoco_fit_elliptic.md`` (the elliptic configurations, three laws) were measured with
 earlier soft laws and are kept as history.
