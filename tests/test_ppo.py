@@ -194,6 +194,16 @@ def test_fit_ppo_searches_on_a_subset_and_reports_the_cost_on_every_run(tiny_obj
     assert result.cost < result.initial_cost
 
 
+def test_fit_ppo_leaves_no_log_folder_behind(tiny_objective: Objective, tmp_path, monkeypatch) -> None:
+    """stable-baselines3's default logger makes an ``SB3-<date>`` folder in the temporary
+    directory on every fit (dozens of empty folders after a test run); ``fit_ppo`` logs nowhere."""
+    import tempfile
+
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    fit_ppo(tiny_objective, total_timesteps=64, n_envs=1, seed=3)
+    assert list(tmp_path.glob("SB3-*")) == []
+
+
 def test_fit_ppo_same_seed_same_result(tiny_objective: Objective) -> None:
     first, second = (fit_ppo(tiny_objective, total_timesteps=64, n_envs=1, seed=3) for _ in range(2))
     np.testing.assert_array_equal(first.params.as_vector(), second.params.as_vector())

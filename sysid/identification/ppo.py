@@ -37,6 +37,7 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from stable_baselines3 import PPO
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import Logger
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
@@ -199,6 +200,9 @@ def fit_ppo(objective: Objective, *, budget_seconds: float | None = None, total_
                     policy_kwargs={"net_arch": {"pi": list(settings.hidden), "vf": list(settings.hidden)},
                                    "log_std_init": settings.log_std_init},
                     seed=seed, device="cpu", verbose=0)
+        # a logger with no outputs: SB3's default at verbose 0 still makes an empty SB3-<date>
+        # folder in the temporary directory on every fit
+        model.set_logger(Logger(folder=None, output_formats=[]))
         monitor = _TrainingMonitor(t_start, budget_seconds, progress)
         model.learn(total_timesteps, callback=monitor)
     best = monitor.finish()
