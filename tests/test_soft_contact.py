@@ -458,8 +458,7 @@ def test_a_soft_law_fit_starts_on_a_soft_and_the_stiffest_ground_and_screens_the
 
     def fake_fit(objective):
         p = objective.params
-        horizon = max(float(r.t[-1] - r.t[0]) for r in objective.runs)
-        calls.append((round(horizon, 2), p.contact_time_constant, p.contact_rounding, p.mu_c))
+        calls.append((round(objective.longest_run_s, 2), p.contact_time_constant, p.contact_rounding, p.mu_c))
         cost = (p.contact_rounding - 0.04) ** 2 + (np.log(p.contact_time_constant / 0.003)) ** 2
         return SimpleNamespace(cost=cost, seconds=1.0, params=p.with_values(mu_c=p.mu_c + 0.01))  # where it ends
 

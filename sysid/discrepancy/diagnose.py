@@ -317,7 +317,7 @@ SCREEN_HORIZON_S = 6.0
 
 def _capped(objective: Objective, horizon_s: float = SCREEN_HORIZON_S) -> Objective:
     """``objective`` on at most the first ``horizon_s`` of each run."""
-    if max(float(r.t[-1] - r.t[0]) for r in objective.runs) > horizon_s:
+    if objective.longest_run_s > horizon_s:
         return objective.truncated(horizon_s)
     return objective
 

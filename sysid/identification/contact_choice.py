@@ -124,6 +124,13 @@ def fit_count(params: ModelParameters, rounding_starts: Sequence[float] = ROUNDI
     return n + WHOLE_RUN_FITS if n > WHOLE_RUN_FITS else n
 
 
+def describe_start(values: Mapping[str, float]) -> str:
+    """``contact_time_constant 0.002 s, contact_rounding 0.045 m`` (one of :func:`fit_starts`), or
+    ``its own start`` for the empty one."""
+    units = {"contact_rounding": "m", "contact_time_constant": "s"}
+    return ", ".join(f"{n} {v:g} {units[n]}" for n, v in values.items()) or "its own start"
+
+
 @dataclass(frozen=True)
 class StartFit:
     """One start of :func:`fit_from_shapes`: its starting ``values``, its cost after the screen
@@ -138,9 +145,8 @@ class StartFit:
         return {**self.values, "screen_cost": self.screen_cost, "train_cost": self.cost}
 
     def describe(self) -> str:
-        """``contact_rounding 0.045 m, contact_time_constant 0.002 s``, or ``its own start``."""
-        units = {"contact_rounding": "m", "contact_time_constant": "s"}
-        return ", ".join(f"{n} {v:g} {units[n]}" for n, v in self.values.items()) or "its own start"
+        """The start's values (:func:`describe_start`)."""
+        return describe_start(self.values)
 
 
 @dataclass(frozen=True)
@@ -168,14 +174,13 @@ def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult] 
     """
     start = objective.params
     starts = fit_starts(start, rounding_starts)
-    longest = max(float(r.t[-1] - r.t[0]) for r in objective.runs)
-    screen = len(starts) > whole_run_fits and longest > SCREEN_HORIZON_S
+    screen = len(starts) > whole_run_fits and objective.longest_run_s > SCREEN_HORIZON_S
     seconds = 0.0
     screened: list[FitResult | None] = [None] * len(starts)
     if screen:
         for k, values in enumerate(starts):
             if progress is not None:
-                progress(f"{label}: screening the start {StartFit(values, None, None).describe()} on the first "
+                progress(f"{label}: screening the start {describe_start(values)} on the first "
                          f"{SCREEN_HORIZON_S:g} s")
             screened[k] = fit(objective.with_params(start.with_values(**values)).truncated(SCREEN_HORIZON_S))
             seconds += screened[k].seconds
@@ -185,7 +190,7 @@ def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult] 
     whole: dict[int, FitResult] = {}
     for k in sorted(kept):
         if progress is not None:
-            progress(f"{label} from {StartFit(starts[k], None, None).describe()}")
+            progress(f"{label} from {describe_start(starts[k])}")
         from_here = screened[k].params if screened[k] is not None else start.with_values(**starts[k])
         whole[k] = fit(objective.with_params(from_here))
         seconds += whole[k].seconds

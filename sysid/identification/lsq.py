@@ -322,7 +322,7 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     if not 0.0 < trust_radius <= 1.0:
         raise InputError(f"trust_radius must be in (0, 1] (a share of each parameter's unit range), got {trust_radius}")
     t_start = time.perf_counter()
-    longest = max(float(r.t[-1] - r.t[0]) for r in objective.runs)
+    longest = objective.longest_run_s
     params0 = objective.params
     z = params0.to_unit()
     r0 = objective.residuals(params0.as_vector()[None])[0]

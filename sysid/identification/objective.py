@@ -458,6 +458,11 @@ class Objective:
         return self.on_runs([r.slice_time(float(r.t[0]), float(r.t[0]) + seconds) for r in self.runs])
 
     @property
+    def longest_run_s(self) -> float:
+        """The longest run's span [s], first to last sample."""
+        return max(tg.duration for tg in self.spec.targets)
+
+    @property
     def names(self) -> tuple[str, ...]:
         return self.params.free_names
 
