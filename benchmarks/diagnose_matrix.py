@@ -36,14 +36,22 @@ The model's contact law: this simulator's runs are diagnosed with the law that m
 parameters are freed and those it does not read frozen, as ``cobra diagnose --contact`` does;
 another law writes ``diagnose_matrix_<law>.*``).
 
+MuJoCo's contact configuration (``--mujoco-contact``, :func:`sysid.generators.mujoco_recording.contact_configurations`):
+the twin by default (capsule pairs, pyramidal cone, ``solref`` 20 ms); ``stiff`` (2 ms, near
+rigid) or ``elliptic_soft`` (elliptic cone, 40 ms) are contacts of another structure, for the
+diagnosis's claims on more than one (another configuration writes
+``diagnose_matrix_<law>_<configuration>.*``).
+
 Usage: ``python benchmarks/diagnose_matrix.py [--engines sim,mujoco] [--effects ...]
 [--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--no-pairs]
-[--mujoco-contact-law compliant|soft_constraint] [--executor local|ray] [--resume]``.
+[--mujoco-contact-law compliant|soft_constraint|choose] [--mujoco-contact twin|stiff|...]
+[--executor local|ray] [--resume]``.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import itertools
 import json
 import sys
@@ -66,6 +74,8 @@ from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.identification.contact_choice import free_for_law  # noqa: E402
 from sysid.identification.executor import make_executor  # noqa: E402
+from sysid.generators.mujoco_recording import (contact_configurations, describe, record_mujoco,  # noqa: E402
+                                               twin_options)
 
 ERROR = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 FREE_SIM = ["mu_c", "joint_damping", "motor_km"]
@@ -82,6 +92,9 @@ NEAR_LIMIT = {"joint_coulomb_friction": 0.075, "backlash": 0.005, "actuator_dela
               "torque_saturation": 3.9, "anisotropic_ground_friction": 1.25, "encoder_offset": 0.0075,
               "link_mass_error": 0.2}
 ENGINES = ("sim", "mujoco")
+#: MuJoCo's contact configurations for its runs (``--mujoco-contact``), around the twin of the
+#: robot with the parameter error ``ERROR``.
+MUJOCO_CONTACTS = contact_configurations(twin_options(ModelParameters.nominal().with_values(**ERROR)))
 #: Joins the two effects of a pair job's ``effect`` ("actuator_delay+backlash").
 PAIR_SEP = "+"
 
@@ -97,6 +110,7 @@ class Job:
     seed: int
     duration_s: float
     contact_law: str = "compliant"  # the model's contact law in the diagnosis (its start and free set), or "choose"
+    mujoco_contact: str | None = "twin"  # MuJoCo's contact configuration (MUJOCO_CONTACTS); None for this simulator's
 
     @property
     def hidden(self) -> dict[str, float]:
@@ -119,8 +133,8 @@ def make_runs(job: Job, model: CobraModel) -> list:
     if job.engine == "sim":
         sim = Simulator(model, library.transform(truth, job.hidden, frozen=True))
         return [record(sim, p, rng, model) for p in plans]
-    from sysid.generators.mujoco_recording import record_mujoco, twin_options
-    options = dataclasses.replace(twin_options(truth), **{MUJOCO_OPTIONS[n]: v for n, v in job.hidden.items()})
+    options = dataclasses.replace(MUJOCO_CONTACTS[job.mujoco_contact],
+                                  **{MUJOCO_OPTIONS[n]: v for n, v in job.hidden.items()})
     return [record_mujoco(p, options, rng, model, truth) for p in plans]
 
 
@@ -144,6 +158,7 @@ def run_job(job: Job) -> dict[str, Any]:
     before, after = d.gap_before, d.gap_after
     return {"engine": job.engine, "effect": job.effect, "level": job.level, "magnitude": job.magnitude,
             "seed": job.seed, "contact_law": job.contact_law, "law_fitted": d.params_before.contact_law,
+            "mujoco_contact": job.mujoco_contact,
             "named": named[0] if named else None, "named_all": named,
             "all_named": bool(job.hidden) and set(job.hidden) <= set(named),
             "structural": [s.name for s in d.structural],
@@ -156,14 +171,16 @@ def run_job(job: Job) -> dict[str, Any]:
 
 
 def job_key(row_or_job: Any) -> tuple:
-    """What identifies a job (and the row it made): engine, effect, level, magnitude, seed and the
-    model's contact law (rows written before the law was recorded: compliant)."""
+    """What identifies a job (and the row it made): engine, effect, level, magnitude, seed, the
+    model's contact law and MuJoCo's contact configuration (rows written before these were
+    recorded: compliant, twin)."""
     if isinstance(row_or_job, dict):
         get = row_or_job.get
-        law = row_or_job.get("contact_law", "compliant")
+        law, contact = row_or_job.get("contact_law", "compliant"), row_or_job.get("mujoco_contact") or "twin"
     else:
-        get, law = (lambda k: getattr(row_or_job, k)), row_or_job.contact_law
-    return (get("engine"), get("effect"), get("level"), get("magnitude"), get("seed"), law)
+        get, law, contact = (lambda k: getattr(row_or_job, k)), row_or_job.contact_law, row_or_job.mujoco_contact
+    return (get("engine"), get("effect"), get("level"), get("magnitude"), get("seed"), law,
+            contact if get("engine") == "mujoco" else None)
 
 
 def finished_rows(path: Path, duration_s: float) -> dict[tuple, dict[str, Any]]:
@@ -188,24 +205,27 @@ def finished_rows(path: Path, duration_s: float) -> dict[tuple, dict[str, Any]]:
 
 
 def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: list[int], nulls: int,
-             duration_s: float, pairs: bool = False, mujoco_law: str = "compliant") -> list[Job]:
+             duration_s: float, pairs: bool = False, mujoco_law: str = "compliant",
+             mujoco_contact: str = "twin") -> list[Job]:
     """Every (engine, effect, magnitude, seed) job, then ``nulls`` nulls per engine (seeds cycled),
     then with ``pairs`` every pair of the engine's effects hidden together at their realistic
-    magnitudes, one dataset each (seeds cycled). MuJoCo's runs are diagnosed with the model's
-    ``mujoco_law``; this simulator's with the law that made them (compliant)."""
+    magnitudes, one dataset each (seeds cycled). MuJoCo's runs are made with its
+    ``mujoco_contact`` configuration and diagnosed with the model's ``mujoco_law``; this
+    simulator's with the law that made them (compliant)."""
     library = EffectLibrary()
     out = []
     for engine in engines:
         mine = [e for e in effects if engine == "sim" or e in MUJOCO_OPTIONS]
         law = mujoco_law if engine == "mujoco" else "compliant"
+        job = functools.partial(Job, duration_s=duration_s, contact_law=law,
+                                mujoco_contact=mujoco_contact if engine == "mujoco" else None)
         for effect in mine:
             for level in levels:
                 magnitude = library[effect].realistic if level == "realistic" else NEAR_LIMIT[effect]
-                out += [Job(engine, effect, magnitude, level, seed, duration_s, law) for seed in seeds]
-        out += [Job(engine, None, None, "null", seeds[k % len(seeds)] + 1000 * (k // len(seeds)), duration_s, law)
-                for k in range(nulls)]
+                out += [job(engine, effect, magnitude, level, seed) for seed in seeds]
+        out += [job(engine, None, None, "null", seeds[k % len(seeds)] + 1000 * (k // len(seeds))) for k in range(nulls)]
         if pairs:
-            out += [Job(engine, PAIR_SEP.join(pair), None, "pair", seeds[k % len(seeds)], duration_s, law)
+            out += [job(engine, PAIR_SEP.join(pair), None, "pair", seeds[k % len(seeds)])
                     for k, pair in enumerate(itertools.combinations(mine, 2))]
     return out
 
@@ -244,9 +264,11 @@ def heatmap(rows: list[dict[str, Any]], engine: str, out: Path) -> Path:
     return plot_confusion(counts, truth, named, out, title=f"{engine}: hidden vs named first")
 
 
-def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], mujoco_law: str = "compliant") -> str:
+def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], mujoco_law: str = "compliant",
+             mujoco_contact: str = "twin") -> str:
     lines = [f"Seeds {', '.join(map(str, seeds))} (developed on {', '.join(map(str, DEV_SEEDS))}); two 0.5/0.65 Hz "
-             f"training runs and one 0.5 Hz held-out run per job; MuJoCo's runs diagnosed "
+             f"training runs and one 0.5 Hz held-out run per job; MuJoCo's runs made with its {mujoco_contact} "
+             f"contact configuration ({describe(MUJOCO_CONTACTS[mujoco_contact])}) and diagnosed "
              + ("under the contact law each diagnosis chose (in brackets)" if mujoco_law == "choose"
                 else f"with the {mujoco_law} contact law") + ".", "",
              "| engine | diagnoses | named first (right) | false positives on nulls | median held-out cost "
@@ -288,6 +310,9 @@ def main(argv: list[str] | None = None) -> int:
                              "the diagnosis fits every law and keeps the lower held-out cost, as `cobra diagnose "
                              "--contact choose`; with another than compliant, results go to "
                              "diagnose_matrix_<law>.*)")
+    parser.add_argument("--mujoco-contact", choices=tuple(MUJOCO_CONTACTS), default="twin",
+                        help="MuJoCo's contact configuration for its runs (default twin; another writes "
+                             "diagnose_matrix_<law>_<configuration>.*)")
     parser.add_argument("--no-pairs", dest="pairs", action="store_false",
                         help="leave out the jobs that hide two effects together (every pair of the engine's "
                              "effects at their realistic magnitudes, one seed each)")
@@ -310,8 +335,9 @@ def main(argv: list[str] | None = None) -> int:
     if set(seeds) & set(DEV_SEEDS):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     law = args.mujoco_contact_law
-    name = "diagnose_matrix" if law == "compliant" else f"diagnose_matrix_{law}"
-    jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration, args.pairs, law)
+    contact = args.mujoco_contact
+    name = "_".join(["diagnose_matrix"] + ([law] if law != "compliant" else []) + ([contact] if contact != "twin" else []))
+    jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration, args.pairs, law, contact)
     done = finished_rows(RESULTS_DIR / f"{name}.json", args.duration) if args.resume else {}
     done = {k: r for k, r in done.items() if k in {job_key(j) for j in jobs}}
     todo = [j for j in jobs if job_key(j) not in done]
@@ -331,13 +357,14 @@ def main(argv: list[str] | None = None) -> int:
         meta = {"engines": engines, "effects": effects, "magnitudes": levels, "seeds": seeds,
                 "dev_seeds": list(DEV_SEEDS), "nulls": args.nulls, "pairs": args.pairs, "duration_s": args.duration,
                 "mujoco_contact_law": law, "mujoco_contact_laws": list(CONTACT_LAWS) if law == "choose" else [law],
+                "mujoco_contact": contact,
                 "executor": args.executor,
                 "summary": [summary(rows, e) for e in engines]}
-        write_results(name, rows, meta, markdown(rows, engines, seeds, law))
+        write_results(name, rows, meta, markdown(rows, engines, seeds, law, contact))
     executor.close()
     for engine in engines:
         heatmap(rows, engine, RESULTS_DIR / f"{name}_{engine}.png")
-    print(markdown(rows, engines, seeds, law))
+    print(markdown(rows, engines, seeds, law, contact))
     return 0
 
 

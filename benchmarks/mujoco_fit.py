@@ -63,7 +63,6 @@ earlier soft laws and are kept as history.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 from typing import Callable
@@ -82,7 +81,7 @@ from sysid.identification.contact_choice import LAW_FREE, SCREEN_HORIZON_S, WHOL
 from sysid.identification.lsq import fit_lsq, refit_by_residual
 from sysid.identification.objective import SENSOR_NOISE, Objective
 from sysid.gap.metrics import compare_runs
-from sysid.generators.mujoco_recording import describe, record_mujoco, stiff_contact, twin_options
+from sysid.generators.mujoco_recording import contact_configurations, describe, record_mujoco, twin_options
 
 #: The robot's parameter error (as in benchmarks/mujoco_robustness.py).
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
@@ -98,18 +97,6 @@ VALIDATION_SEED_OFFSET = 10_000
 JOINT_FLOOR_RAD = SENSOR_NOISE["joints"]
 HEAD_BOUND_M = 0.05
 JOINT_BOUND_FACTOR = 1.5
-
-
-def configurations(truth: ModelParameters) -> dict[str, TwinOptions]:
-    """The MuJoCo contact configurations of the benchmark (see the module docstring)."""
-    twin = twin_options(truth)
-    return {
-        "twin": twin,
-        "elliptic_soft": dataclasses.replace(twin, cone="elliptic", solref=(0.04, 1.0)),
-        "cylinder": dataclasses.replace(twin, contact="cylinder"),
-        "stiff": stiff_contact(twin),
-        "stiff_elliptic": stiff_contact(dataclasses.replace(twin, cone="elliptic")),
-    }
 
 
 def mujoco_truth(options: TwinOptions) -> dict[str, float]:
@@ -263,7 +250,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     truth = ModelParameters.nominal().with_values(**TRUTH)
-    configs = configurations(truth)
+    configs = contact_configurations(twin_options(truth))
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--configs", default=",".join(configs), help=f"subset of {', '.join(configs)}")
     parser.add_argument("--seeds", default=",".join(map(str, EVAL_SEEDS)), help="noise seeds (default: 101,102,103)")

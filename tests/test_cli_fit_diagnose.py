@@ -258,6 +258,10 @@ def test_diagnose_chooses_the_contact_law_by_the_held_out_cost_after_the_effects
     assert doc["effects"] == []
     assert ModelParameters.load(tmp_path / "d" / "augmented_params.json").contact_law == "soft_constraint"
     assert "contact law: soft_constraint" in doc["verdict"]
+    # each law's base fit started from every ground its free set allows, as cobra fit's does: the
+    # soft law's on a soft ground (20 ms) and on the stiffest (2 ms), and kept the soft one
+    starts = {s["contact_time_constant"]: s["train_cost"] for s in doc["base_fit_starts"]}
+    assert set(starts) == {0.02, 0.002} and starts[0.02] < starts[0.002], starts
 
 
 @pytest.mark.parametrize("contact, extra, message", [

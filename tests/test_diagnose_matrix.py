@@ -59,6 +59,24 @@ def test_mujocos_runs_take_the_contact_law_asked_for_and_resume_tells_laws_apart
     assert job_key(jobs_for(["mujoco"], ["actuator_delay"], ["realistic"], [31], 0, 3.0)[0]) in done
 
 
+
+def test_mujocos_runs_take_the_contact_configuration_asked_for_and_resume_tells_them_apart(tmp_path: Path) -> None:
+    import json
+    from benchmarks.diagnose_matrix import MUJOCO_CONTACTS, finished_rows, job_key
+    jobs = jobs_for(["sim", "mujoco"], ["actuator_delay"], ["realistic"], [31], 0, 3.0, mujoco_contact="stiff")
+    assert {(j.engine, j.mujoco_contact) for j in jobs} == {("sim", None), ("mujoco", "stiff")}
+    assert MUJOCO_CONTACTS["stiff"].solref[0] == 0.002 and MUJOCO_CONTACTS["twin"].solref[0] == 0.02
+    old = {**_row("mujoco", "actuator_delay", "actuator_delay"), "magnitude": 0.04, "seed": 31}  # no configuration: twin
+    path = tmp_path / "diagnose_matrix.json"
+    path.write_text(json.dumps({"meta": {"duration_s": 3.0}, "rows": [old]}))
+    done = finished_rows(path, 3.0)
+    stiff = next(j for j in jobs if j.engine == "mujoco")
+    assert job_key(stiff) not in done  # a twin row is no stiff-contact job
+    assert job_key(jobs_for(["mujoco"], ["actuator_delay"], ["realistic"], [31], 0, 3.0)[0]) in done
+    sim = next(j for j in jobs if j.engine == "sim")  # this simulator's runs have no MuJoCo configuration
+    assert job_key(sim) == job_key(jobs_for(["sim"], ["actuator_delay"], ["realistic"], [31], 0, 3.0)[0])
+
+
 def test_pairs_are_counted_apart_from_the_confusion_matrix() -> None:
     pair = {**_row("sim", "backlash+actuator_delay", "backlash"), "level": "pair",
             "named_all": ["backlash", "actuator_delay"], "all_named": True}

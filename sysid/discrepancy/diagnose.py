@@ -1,6 +1,9 @@
 """The discrepancy workflow: fit, localise, try candidate effects, name one, refit, show the gap.
 
-1. **Fit** the current model by least squares (:func:`sysid.identification.lsq.fit_lsq`) on the training runs;
+1. **Fit** the current model by least squares (:func:`sysid.identification.lsq.fit_lsq`) on the training runs,
+   from every start :func:`sysid.identification.contact_choice.fit_from_shapes` gives when the
+   ground's shape or stiffness is free (as ``cobra fit`` does: a fit from one start stays in its
+   basin, e.g. a soft ground's on a stiff one), the lowest training cost kept;
    if its head-path residual outweighs its joints', weight the head channel down for every later
    fit and judgement (:func:`balanced_weights`: another engine's or the real ground leaves an
    unexplained head drift that would drown a joint-side effect).
@@ -53,6 +56,7 @@ from cobra_model.run import Run
 from integrators.simulate import rollout_like, simulate_like
 from integrators.simulator import Simulator
 from sysid.discrepancy.effects import Effect, EffectLibrary
+from sysid.identification.contact_choice import StartFit, fit_from_shapes
 from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
 from sysid.identification.objective import Objective, Weights
 from sysid.identification.splits import spread_over_gaits
@@ -243,6 +247,7 @@ class Diagnosis:
     structural: list[StructuralDifference] = field(default_factory=list)
     weights: Weights = field(default_factory=Weights)
     contact_choice: dict | None = None  # {"chosen": law, "laws": [each law's outcome]} when the law was chosen
+    base_starts: tuple[StartFit, ...] = ()  # the base fit's starts (shapes of the ends, stiffness of the ground)
 
     def to_json(self) -> dict:
         return {
@@ -251,6 +256,7 @@ class Diagnosis:
                                "joint_scale_rad": self.weights.joint_scale_rad},
             "structural": [s.to_json() for s in self.structural],
             "contact_choice": self.contact_choice,
+            "base_fit_starts": [s.to_json() for s in self.base_starts],
             "gap_before": self.gap_before.to_json() if self.gap_before else None,
             "gap_after": self.gap_after.to_json() if self.gap_after else None,
             "signature": self.signature.to_json() if self.signature else None,
@@ -602,7 +608,11 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     fit_set = spread_over_gaits(train, config.fit_runs)
     result = Diagnosis()
     progress(f"fitting the current model ({', '.join(start.free_names)}) on {len(fit_set)} runs")
-    base = fit_lsq(Objective(fit_set, start), max_iterations=config.fit_iterations)
+    base_fits = fit_from_shapes(Objective(fit_set, start),
+                                lambda objective: fit_lsq(objective, max_iterations=config.fit_iterations),
+                                label="fitting the current model", progress=progress)
+    base = base_fits.best
+    result.base_starts = base_fits.starts
     result.fits.append(base)
     current = base.params
     result.params_before = current

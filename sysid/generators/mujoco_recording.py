@@ -90,6 +90,20 @@ def stiff_contact(options: TwinOptions) -> TwinOptions:
     return dataclasses.replace(options, solref=(STIFF_SOLREF_S, options.solref[1]), timestep=STIFF_TIMESTEP_S)
 
 
+def contact_configurations(twin: TwinOptions) -> dict[str, TwinOptions]:
+    """MuJoCo contact configurations around ``twin`` (:func:`twin_options`), by name: the twin
+    itself (capsule pairs, pyramidal cone, ``solref`` 0.02 s), ``elliptic_soft`` (elliptic cone,
+    0.04 s), ``cylinder`` (the URDF's cylinders, MuJoCo's own contacts in a world-fixed frame),
+    ``stiff`` (pyramidal, 2 ms: :func:`stiff_contact`) and ``stiff_elliptic`` (elliptic, 2 ms)."""
+    return {
+        "twin": twin,
+        "elliptic_soft": dataclasses.replace(twin, cone="elliptic", solref=(0.04, 1.0)),
+        "cylinder": dataclasses.replace(twin, contact="cylinder"),
+        "stiff": stiff_contact(twin),
+        "stiff_elliptic": stiff_contact(dataclasses.replace(twin, cone="elliptic")),
+    }
+
+
 def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarray], np.ndarray],
             duration_s: float, record_every: int = 2, error_limit_rad: float | None = None
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
