@@ -320,8 +320,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--executor", choices=("local", "ray"), default="local")
     parser.add_argument("--ray-address", default=None, help="join this Ray cluster (with --executor ray)")
     parser.add_argument("--resume", action="store_true",
-                        help="keep the rows of benchmarks/results/diagnose_matrix.json that are jobs of this run "
-                             "and diagnose only the others (after an interrupted run)")
+                        help="keep the rows of this run's results file (benchmarks/results/diagnose_matrix[_<law>]"
+                             "[_<configuration>].json) that are jobs of this run and diagnose only the others "
+                             "(after an interrupted run)")
     args = parser.parse_args(argv)
     engines = [e for e in args.engines.split(",") if e]
     effects = [e for e in args.effects.split(",") if e]

@@ -70,7 +70,9 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
                 levels.append(f"{right}/{len(rows)} {level.replace('_', ' ')}")
         nulls = [r for r in mine if r["effect"] is None]
         law = doc["meta"].get("mujoco_contact_law", "compliant")
-        where = "on this simulator's runs" if s["engine"] == "sim" else "on MuJoCo's runs"
+        contact = doc["meta"].get("mujoco_contact", "twin")  # files written before it was asked: the twin's
+        where = ("on this simulator's runs" if s["engine"] == "sim" else
+                 "on MuJoCo's runs" + (f" with its {contact} contact" if contact != "twin" else ""))
         if s["engine"] == "mujoco" and law != "compliant":
             # a file written before the elliptic law existed chose between the first two laws
             among = doc["meta"].get("mujoco_contact_laws", ["compliant", "soft_constraint"])
@@ -206,7 +208,8 @@ def _faults(doc: dict) -> list[tuple[str, str, str]]:
 #: Results file -> how its headline rows are read.
 SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix,
-    "diagnose_matrix_soft_constraint": _matrix, "diagnose_matrix_choose": _matrix, "effect_signal": _signal,
+    "diagnose_matrix_soft_constraint": _matrix, "diagnose_matrix_choose": _matrix,
+    "diagnose_matrix_soft_constraint_stiff": _matrix, "effect_signal": _signal,
     "diagnose_accuracy": _accuracy,
     "mujoco_robustness": _robustness,
     "mujoco_robustness_stiff": _robustness, "mujoco_fit_residual": _mujoco_fit,

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import Sequence
 
-from cobra_cli.common import add_contact_option, check_writable, law_starts
+from cobra_cli.common import add_contact_option, check_writable, law_starts, start_lines
 from cobra_model.errors import InputError
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
@@ -87,6 +87,8 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
     if json_out:
         print(json.dumps(doc, indent=2, default=float))
         return 0
+    for line in start_lines(result.base_starts, "the base fit's "):
+        print(line)
     print(result.verdict)
     for d in result.structural:
         print(f"  structural difference (not named): {d.name} would cut the held-out cost by "

@@ -5,7 +5,7 @@ import argparse
 import json
 from pathlib import Path
 
-from cobra_cli.common import add_contact_option, check_writable, chosen_laws, law_starts
+from cobra_cli.common import add_contact_option, check_writable, chosen_laws, law_starts, start_lines
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 from sysid.identification.executor import make_executor
@@ -144,12 +144,8 @@ def run(args: argparse.Namespace) -> int:
             shapes = fit_from_shapes(Objective(train, params, weights, executor=executor), lsq,
                                      label="fitting", progress=lambda line: bar.write(line))
             result, shapes_starts = shapes.best, shapes.starts
-        if len(shapes_starts) > 1:
-            print("training cost from each start (screened on the first seconds, then the whole runs):")
-            for one in shapes_starts:
-                print(f"  {one.describe():55s} "
-                      + (f"screen {one.screen_cost:.4g}  " if one.screen_cost is not None else "")
-                      + (f"whole runs {one.cost:.4g}" if one.cost is not None else "(not kept)"))
+        for line in start_lines(shapes_starts):
+            print(line)
         if args.channel_weights == "residual":
             result = refit_by_residual(Objective(train, result.params, weights, executor=executor), result, lsq)
             scales = result.extra["channel_scales"]

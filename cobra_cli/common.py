@@ -11,6 +11,7 @@ from cobra_model.parameters import CONTACT_LAWS, ModelParameters
 from cobra_model.run import Run
 
 if TYPE_CHECKING:
+    from sysid.identification.contact_choice import StartFit
     from sysid.identification.datacheck import DataCheck
 
 
@@ -121,6 +122,16 @@ def law_starts(path: str | Path | None, contact_law: str | None, free: str | Non
             start, data_check = check_before_fit(train, start, held_out=held_out, out=out)
         starts[start.contact_law], checks[start.contact_law] = start, data_check
     return starts, checks
+
+
+def start_lines(starts: Sequence[StartFit], fit: str = "") -> list[str]:
+    """The training cost a fit (``fit``: which, e.g. "the base fit's ") reached from each of its
+    starts (``fit_from_shapes``), one line each; none when it had one start."""
+    if len(starts) < 2:
+        return []
+    return ([f"{fit}training cost from each start (screened on the first seconds, then the whole runs):"]
+            + [f"  {one.describe():55s} " + (f"screen {one.screen_cost:.4g}  " if one.screen_cost is not None else "")
+               + (f"whole runs {one.cost:.4g}" if one.cost is not None else "(not kept)") for one in starts])
 
 
 def add_contact_option(p: argparse.ArgumentParser, what: str, choose: str = "") -> None:

@@ -248,9 +248,9 @@ def test_diagnose_chooses_the_contact_law_by_the_held_out_cost_after_the_effects
     start = ModelParameters.nominal().with_frozen(frozen=["armature", "joint_damping", "motor_km"])
     start.save(tmp_path / "start.json")
     assert main(["diagnose", *map(str, train), "--holdout", str(hold), "--contact", "compliant,soft_constraint",
-                 "--max-effects", "0", "--params", str(tmp_path / "start.json"), "--out", str(tmp_path / "d"),
-                 "--json"]) == 0
-    doc = json.loads(capsys.readouterr().out)
+                 "--max-effects", "0", "--params", str(tmp_path / "start.json"), "--out", str(tmp_path / "d")]) == 0
+    printed = capsys.readouterr().out
+    doc = json.loads((tmp_path / "d" / "diagnosis.json").read_text())
     choice = doc["contact_choice"]
     held = {f["law"]: f["held_out_cost"] for f in choice["laws"]}
     assert set(held) == {"compliant", "soft_constraint"}
@@ -262,6 +262,8 @@ def test_diagnose_chooses_the_contact_law_by_the_held_out_cost_after_the_effects
     # soft law's on a soft ground (20 ms) and on the stiffest (2 ms), and kept the soft one
     starts = {s["contact_time_constant"]: s["train_cost"] for s in doc["base_fit_starts"]}
     assert set(starts) == {0.02, 0.002} and starts[0.02] < starts[0.002], starts
+    assert "the base fit's training cost from each start" in printed
+    assert re.search(r"contact_time_constant 0\.002 s +whole runs [0-9.e+]+", printed), printed
 
 
 @pytest.mark.parametrize("contact, extra, message", [
