@@ -160,6 +160,8 @@ def run_job(job: Job) -> dict[str, Any]:
             "seed": job.seed, "contact_law": job.contact_law, "law_fitted": d.params_before.contact_law,
             "mujoco_contact": job.mujoco_contact,
             "named": named[0] if named else None, "named_all": named,
+            # each named effect's fitted value (parameter units): an effect named at its inactive value is no effect
+            "named_values": {e.name: e.value for e in d.effects},
             "all_named": bool(job.hidden) and set(job.hidden) <= set(named),
             "structural": [s.name for s in d.structural],
             "head_final_before_m": before.head_final_error_m, "head_final_after_m": after.head_final_error_m,
