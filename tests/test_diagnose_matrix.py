@@ -1,6 +1,7 @@
 """The confusion-matrix benchmark's bookkeeping: jobs, rates and the heatmap (no diagnosis run)."""
 from __future__ import annotations
 
+import json
 import sys
 from pathlib import Path
 
@@ -9,7 +10,8 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.diagnose_matrix import MUJOCO_OPTIONS, jobs_for, summary  # noqa: E402
+from benchmarks.diagnose_matrix import (MUJOCO_CONTACTS, MUJOCO_OPTIONS, Job, finished_rows, job_key,  # noqa: E402
+                                        jobs_for, summary)
 from cobra_model.errors import InputError  # noqa: E402
 from sysid.gap.plots import plot_confusion  # noqa: E402
 
@@ -31,7 +33,6 @@ def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_expre
 
 
 def test_pairs_hide_every_two_effects_an_engine_expresses_at_their_realistic_magnitudes() -> None:
-    from benchmarks.diagnose_matrix import Job
     effects = ["backlash", "actuator_delay", "encoder_offset"]
     jobs = [j for j in jobs_for(["sim", "mujoco"], effects, ["realistic"], [31, 32], 0, 3.0, pairs=True)
             if j.level == "pair"]
@@ -46,8 +47,6 @@ def test_pairs_hide_every_two_effects_an_engine_expresses_at_their_realistic_mag
 
 
 def test_mujocos_runs_take_the_contact_law_asked_for_and_resume_tells_laws_apart(tmp_path: Path) -> None:
-    import json
-    from benchmarks.diagnose_matrix import finished_rows, job_key
     jobs = jobs_for(["sim", "mujoco"], ["actuator_delay"], ["realistic"], [31], 1, 3.0, mujoco_law="soft_constraint")
     assert {(j.engine, j.contact_law) for j in jobs} == {("sim", "compliant"), ("mujoco", "soft_constraint")}
     old = {**_row("mujoco", "actuator_delay", "actuator_delay"), "magnitude": 0.04, "seed": 31}  # no law: compliant
@@ -59,10 +58,7 @@ def test_mujocos_runs_take_the_contact_law_asked_for_and_resume_tells_laws_apart
     assert job_key(jobs_for(["mujoco"], ["actuator_delay"], ["realistic"], [31], 0, 3.0)[0]) in done
 
 
-
 def test_mujocos_runs_take_the_contact_configuration_asked_for_and_resume_tells_them_apart(tmp_path: Path) -> None:
-    import json
-    from benchmarks.diagnose_matrix import MUJOCO_CONTACTS, finished_rows, job_key
     jobs = jobs_for(["sim", "mujoco"], ["actuator_delay"], ["realistic"], [31], 0, 3.0, mujoco_contact="stiff")
     assert {(j.engine, j.mujoco_contact) for j in jobs} == {("sim", None), ("mujoco", "stiff")}
     assert MUJOCO_CONTACTS["stiff"].solref[0] == 0.002 and MUJOCO_CONTACTS["twin"].solref[0] == 0.02
@@ -110,8 +106,6 @@ def test_the_heatmap_is_written_and_checks_its_shape(tmp_path: Path) -> None:
 
 
 def test_resume_keeps_the_rows_of_this_runs_jobs_and_refuses_other_durations(tmp_path: Path) -> None:
-    import json
-    from benchmarks.diagnose_matrix import finished_rows, job_key
     jobs = jobs_for(["sim"], ["backlash"], ["realistic"], [31, 32], 0, 3.0)
     row = {**_row("sim", "backlash", "backlash"), "level": "realistic", "magnitude": jobs[0].magnitude, "seed": 31}
     path = tmp_path / "diagnose_matrix.json"
