@@ -6,10 +6,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from cobra_model import ModelParameters
+from cobra_model import CobraModel, ModelParameters
 from cobra_model.errors import InputError
-from sysid.discrepancy.diagnose import Baseline, Candidate, DiagnoseConfig, choose, diagnose
+from integrators.simulator import Simulator
+from sysid.discrepancy.diagnose import Baseline, Candidate, DiagnoseConfig, choose, diagnose, effect_share
 from sysid.discrepancy.effects import EffectLibrary
+from sysid.generators.dataset import RunPlan, record
+from sysid.identification.objective import Weights
+
+LIBRARY = EffectLibrary()
 
 N = 4000  # training residuals
 BASELINE = Baseline(train_rss=10_000.0, held_out_runs=np.array([100.0, 100.0, 100.0]))
@@ -23,14 +28,15 @@ def candidate(name: str, train_rss: float, held_out_runs: list[float], signature
 
 
 class RefitWithout:
-    """Stands in for the refit without an effect: a fixed result per candidate, calls recorded."""
+    """Stands in for the check of a candidate without its effect: a fixed refit result and share
+    of the held-out cost its effect carries (1 unless given) per candidate, calls recorded."""
 
-    def __init__(self, results: dict[str, Baseline]):
-        self.results, self.calls = results, []
+    def __init__(self, results: dict[str, Baseline], shares: dict[str, float] | None = None):
+        self.results, self.shares, self.calls = results, shares or {}, []
 
-    def __call__(self, c: Candidate) -> Baseline:
+    def __call__(self, c: Candidate) -> tuple[Baseline, float]:
         self.calls.append(c.name)
-        return self.results[c.name]
+        return self.results[c.name], self.shares.get(c.name, 1.0)
 
 
 def test_a_candidate_whose_refit_without_the_effect_fits_as_well_is_not_named():
@@ -133,3 +139,55 @@ def test_a_diagnosis_without_held_out_runs_says_what_is_missing():
         diagnose([object()], [])
     with pytest.raises(InputError, match=r"needs a training run and a held-out run"):
         diagnose([], [])
+
+
+
+def test_a_candidate_whose_effect_carries_too_little_itself_is_set_aside_and_the_next_is_named():
+    """The stiff MuJoCo null's false positive: 'mass' ranks first and keeps its gain against its
+    refit without the effect (that refit left the lucky point its own refit had found), but
+    switched off at its own parameters the held-out cost barely rises: its gain is its other
+    parameters'. It is set aside, reported with its share, and 'friction' is checked and named."""
+    refit = RefitWithout({"mass": BASELINE, "friction": BASELINE}, shares={"mass": 0.05, "friction": 0.6})
+    cands = [candidate("mass", 3_000.0, [30.0, 30.0, 30.0]), candidate("friction", 4_000.0, [40.0, 40.0, 40.0])]
+    best, ranked, proxies = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    assert refit.calls == ["mass", "friction"] and proxies == []
+    assert best is not None and best.name == "friction" and best.effect_share == 0.6
+    assert [(c.name, c.effect_share) for c in ranked] == [("mass", 0.05), ("friction", 0.6)]
+    # alone, the candidate whose effect carries too little is not named
+    best, _, _ = choose(cands[:1], BASELINE, N, DiagnoseConfig(), RefitWithout({"mass": BASELINE}, {"mass": 0.05}))
+    assert best is None
+
+
+def measured_runs(truth: ModelParameters) -> list:
+    """Two runs (0.5, 0.65 Hz) of 3 s made by this simulator and measured like the reference dataset."""
+    model = CobraModel.load()
+    sim = Simulator(model, truth)
+    rng = np.random.default_rng(41)
+    plans = [RunPlan(f"r{i}", f, 3.0, (rng.uniform(-1, 1), rng.uniform(-1, 1)), rng.uniform(0, 2 * np.pi), "train")
+             for i, f in enumerate((0.5, 0.65))]
+    return [record(sim, p, rng, model) for p in plans]
+
+
+@pytest.mark.parametrize("effect, hidden", [("link_mass_error", None), ("backlash", 0.001),
+                                            ("joint_coulomb_friction", 0.3)])
+def test_the_share_an_effect_carries_is_nil_at_its_inactive_value_and_large_where_it_is_real(effect, hidden):
+    """On held-out runs without the effect, a candidate with its effect at the inactive value
+    (its refit found the true other parameters) is the same model switched off: share 0 however
+    good its fit. A small backlash that is not in the data (1 mrad) carries nothing: switched
+    off, the model is the truth and fits better (a negative share). Real joint friction (0.3 N m in the data, fitted at
+    its value) carries most of the held-out cost: switched off, the joints lag their commands."""
+    free = ["mu_c", "joint_damping", "motor_km"]
+    truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098).with_frozen(free=free)
+    in_data = effect if effect == "joint_coulomb_friction" else None
+    made = truth if in_data is None else LIBRARY.transform(truth, {effect: hidden}, frozen=True)
+    holdout = measured_runs(made)
+    value = LIBRARY[effect].parameter.value if hidden is None else hidden
+    c = candidate(effect, 0.0, [0.0])
+    c = replace(c, params=LIBRARY.transform(truth, {effect: value}))
+    share = effect_share(c, LIBRARY[effect], holdout, Weights())
+    if hidden is None:
+        assert share == 0.0
+    elif in_data is None:
+        assert share < 0.0
+    else:
+        assert share > 0.5
