@@ -219,14 +219,21 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 }
 
 
-#: When the soft-constraint contact laws last changed, and the commit: the reference acceleration
-#: takes the floating root frame's turning (CHANGELOG "fourteenth stop"; before it, d544653: each
-#: contact's compliance from its body's weight at the reference pose). Rows of the files in
-#: :data:`SOFT_LAW_SOURCES` measured before it say so.
-SOFT_LAWS_CHANGED_UTC = "2026-11-25T18:00"
-SOFT_LAWS_COMMIT = "5feff3c"
-SOFT_LAW_SOURCES = ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual",
-                    "contact_law")
+#: Changes after which a results file's figures are no longer those of the current code: (when,
+#: UTC; commit; what changed; the files whose figures it changes). Rows of those files measured
+#: before it say so.
+#: - The soft-constraint laws' reference acceleration takes the floating root frame's turning
+#:   (CHANGELOG "fourteenth stop"; before it, d544653: each contact's compliance from its body's
+#:   weight at the reference pose).
+#: - A diagnosis names a checked candidate only if its effect carries the improvement itself
+#:   (``sysid.discrepancy.diagnose.effect_share``; CHANGELOG "eighteenth stop").
+CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
+    ("2026-11-25T18:00", "5feff3c", "soft laws",
+     ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
+    ("2026-11-26T08:57", "0af405b", "naming",
+     ("diagnose_matrix", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_stiff")),
+)
 
 
 def render() -> str:
@@ -240,8 +247,8 @@ def render() -> str:
         try:
             stamp = doc["environment"]["date_utc"]
             date = stamp[:10]
-            if name in SOFT_LAW_SOURCES and stamp < SOFT_LAWS_CHANGED_UTC:
-                date += f"; soft laws before {SOFT_LAWS_COMMIT}"
+            date += "".join(f"; {what} before {commit}" for when, commit, what, files in CHANGES
+                            if name in files and stamp < when)
             rows = rows_of(doc)
         except (KeyError, TypeError, IndexError, StopIteration) as err:
             raise ResultsError(f"{RESULTS / (name + '.json')}: missing or malformed entry ({err!r}); "

@@ -33,8 +33,8 @@
    to the basin, not to the effect, and the refit without it finds that basin too. That fit
    joins the baseline and the candidates are judged again against it. The effect must also
    carry the improvement itself (:func:`effect_share`): switched off at the candidate's own
-   parameters, without a refit, the held-out cost must rise by ``min_improvement``, both costs
-   taken as medians over microscopic perturbations of the parameters (on a stiff ground a
+   parameters, without a refit, the held-out cost must rise by ``min_improvement``, at the
+   parameters as they are and at microscopic perturbations of them alike (on a stiff ground a
    single rollout's cost is rough at scales no data resolve). An effect at or near its inactive
    value is the same model switched off, so its share is nil and it is not named.
    A candidate that would be named but whose fitted value is no physical value of its effect
@@ -111,9 +111,10 @@ class Candidate:
     the held-out one (whole runs) and ``held_out_runs`` its per-run terms; ``added`` counts the
     parameters the effect adds; ``refit_without`` tells whether its model was refitted without
     the effect (:func:`choose`), and ``effect_share`` then gives the held-out improvement its
-    effect carries itself (:func:`effect_share`; None: not measured); ``implausible`` says why its fitted value is no physical value
-    of the effect (:meth:`sysid.discrepancy.effects.Effect.implausible`; None: it is one). The evidence
-    fields are relative to a :class:`Baseline` (:meth:`judged`).
+    effect carries itself (:func:`effect_share`; None: not measured); ``implausible`` says why
+    its fitted value is no physical value of the effect
+    (:meth:`sysid.discrepancy.effects.Effect.implausible`; None: it is one). The evidence fields
+    are relative to a :class:`Baseline` (:meth:`judged`).
     """
 
     name: str
@@ -547,7 +548,7 @@ def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: 
 
 #: Perturbations (count, and size in unit coordinates: 0.01 % of each free parameter's range, a
 #: hundredth of the fit's finite-difference step) over which :func:`effect_share` takes its
-#: medians. Near the optimum of this simulator's smooth soft ground they change the held-out
+#: least share. Near the optimum of this simulator's smooth soft ground they change the held-out
 #: cost by a few percent at most; on a stiff ground's rough one, by tens of percent.
 SHARE_PERTURBATIONS: int = 4
 SHARE_PERTURBATION_UNIT: float = 1e-4
