@@ -279,13 +279,15 @@ def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], m
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for engine in engines:
         s = summary(rows, engine)
-        both = (f"{round(s['pairs_both_named_rate'] * s['pairs'])}/{s['pairs']}" if s["pairs"] else "-")
+        both, wall_pairs = ((f"{round(s['pairs_both_named_rate'] * s['pairs'])}/{s['pairs']}",
+                             f"{s['median_wall_s_pairs']:.0f}") if s["pairs"] else ("-", "-"))
         lines.append(f"| {engine} | {s['diagnoses']} | {100 * s['named_first_rate']:.0f} % | "
                      f"{100 * s['false_positive_rate']:.0f} % | {100 * s['median_cost_reduction_when_right']:.0f} % | "
                      f"{100 * s['median_gap_shrink_when_right']:.0f} % | "
-                     f"{s['median_wall_s']:.0f} | {both} | {s['median_wall_s_pairs']:.0f} |")
-    lines += ["", "Pairs: each of the two effects at its realistic magnitude, named in the order found.", "",
-              "| engine | hidden effect | level | magnitude | seed | named | structural | held-out final "
+                     f"{s['median_wall_s']:.0f} | {both} | {wall_pairs} |")
+    if any(r["level"] == "pair" for r in rows):
+        lines += ["", "Pairs: each of the two effects at its realistic magnitude, named in the order found."]
+    lines += ["", "| engine | hidden effect | level | magnitude | seed | named | structural | held-out final "
               "head [m] | joint RMSE [rad] | wall [s] |", "|---|---|---|---:|---:|---|---|---|---|---:|"]
     for r in rows:
         mag = "-" if r["magnitude"] is None else f"{r['magnitude']:g}"
