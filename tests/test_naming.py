@@ -141,7 +141,6 @@ def test_a_diagnosis_without_held_out_runs_says_what_is_missing():
         diagnose([], [])
 
 
-
 def test_a_candidate_whose_effect_carries_too_little_itself_is_set_aside_and_the_next_is_named():
     """The stiff MuJoCo null's false positive: 'mass' ranks first and keeps its gain against its
     refit without the effect (that refit left the lucky point its own refit had found), but
@@ -168,26 +167,24 @@ def measured_runs(truth: ModelParameters) -> list:
     return [record(sim, p, rng, model) for p in plans]
 
 
-@pytest.mark.parametrize("effect, hidden", [("link_mass_error", None), ("backlash", 0.001),
-                                            ("joint_coulomb_friction", 0.3)])
-def test_the_share_an_effect_carries_is_nil_at_its_inactive_value_and_large_where_it_is_real(effect, hidden):
+@pytest.mark.parametrize("effect, value, in_data", [("link_mass_error", None, False), ("backlash", 0.001, False),
+                                                   ("joint_coulomb_friction", 0.3, True)])
+def test_the_share_an_effect_carries_is_nil_at_its_inactive_value_and_large_where_it_is_real(effect, value, in_data):
     """On held-out runs without the effect, a candidate with its effect at the inactive value
-    (its refit found the true other parameters) is the same model switched off: share 0 however
-    good its fit. A small backlash that is not in the data (1 mrad) carries nothing: switched
-    off, the model is the truth and fits better (a negative share). Real joint friction (0.3 N m in the data, fitted at
-    its value) carries most of the held-out cost: switched off, the joints lag their commands."""
+    (``value`` None; its refit found the true other parameters) is the same model switched off:
+    share 0 however good its fit. A small backlash that is not in the data (1 mrad) carries
+    nothing: switched off, the model is the truth and fits better (a negative share). Real joint
+    friction (0.3 N m in the data, fitted at its value) carries most of the held-out cost:
+    switched off, the joints lag their commands."""
     free = ["mu_c", "joint_damping", "motor_km"]
     truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098).with_frozen(free=free)
-    in_data = effect if effect == "joint_coulomb_friction" else None
-    made = truth if in_data is None else LIBRARY.transform(truth, {effect: hidden}, frozen=True)
-    holdout = measured_runs(made)
-    value = LIBRARY[effect].parameter.value if hidden is None else hidden
-    c = candidate(effect, 0.0, [0.0])
-    c = replace(c, params=LIBRARY.transform(truth, {effect: value}))
+    holdout = measured_runs(LIBRARY.transform(truth, {effect: value}, frozen=True) if in_data else truth)
+    fitted = LIBRARY[effect].parameter.value if value is None else value
+    c = replace(candidate(effect, 0.0, [0.0]), params=LIBRARY.transform(truth, {effect: fitted}))
     share = effect_share(c, LIBRARY[effect], holdout, Weights())
-    if hidden is None:
+    if value is None:
         assert share == 0.0
-    elif in_data is None:
+    elif not in_data:
         assert share < 0.0
     else:
         assert share > 0.5

@@ -564,7 +564,7 @@ def switched_off(c: Candidate, effect: Effect) -> ModelParameters:
 def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: Weights) -> float:
     """The share of candidate ``c``'s held-out cost that its effect carries itself:
     ``1 - cost(c) / cost(c switched off)``, the other parameters left as the candidate's refit
-    found them (no refit; :func:`switched_off`), the least of it over the parameters as they are
+    found them (no refit), the least of it over the parameters as they are
     and :data:`SHARE_PERTURBATIONS` perturbations of every other free parameter by
     :data:`SHARE_PERTURBATION_UNIT` of its range (each applied to both models, so that a pair
     differs in the effect alone; a perturbed set that is no valid one is left out).
@@ -578,22 +578,23 @@ def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: 
     perturbation, luck does not. An effect switched off at its inactive value is the same model,
     so its share is exactly nil.
     """
-    off = switched_off(c, effect)
+    p = effect.parameter
     z_on = c.params.to_unit()
-    others = np.array([n != effect.parameter.name for n in c.params.free_names])
+    others = np.array([n != p.name for n in c.params.free_names])
     signs = np.random.default_rng(0).choice([-1.0, 1.0], size=(SHARE_PERTURBATIONS, int(others.sum())))
     X_on, X_off = [], []
     for dz in np.vstack([np.zeros(signs.shape[1]), SHARE_PERTURBATION_UNIT * signs]):
         z = z_on.copy()
         z[others] = np.clip(z[others] + dz, 0.0, 1.0)
         try:
-            x_on, x_off = c.params.from_unit(z).as_vector(), off.from_unit(z[others]).as_vector()
+            on = c.params.from_unit(z)
         except InputError:  # a perturbation across a relation between parameters (mu_s >= mu_c)
             continue
-        X_on.append(x_on)
-        X_off.append(x_off)
-    cost_on = _costs(Objective(list(holdout), c.params, weights), np.array(X_on))
-    cost_off = _costs(Objective(list(holdout), off, weights), np.array(X_off))
+        X_on.append(on.as_vector())
+        X_off.append(on.with_values(**{p.name: p.value}).as_vector())
+    # both models in one batch of the candidate's free set, the effect's entry at its inactive value
+    costs = _costs(Objective(list(holdout), c.params, weights), np.array(X_on + X_off))
+    cost_on, cost_off = costs[:len(X_on)], costs[len(X_on):]
     with np.errstate(divide="ignore", invalid="ignore"):
         shares = np.where(cost_off > 0, 1.0 - cost_on / cost_off, 0.0)
     return float(np.min(np.nan_to_num(shares, nan=-np.inf)))
