@@ -50,7 +50,13 @@ class BatchSimulator:
         laws = sorted({p.contact_law for p in params})
         if len(laws) > 1:
             raise InputError(f"a batch steps one contact law; the parameter sets have {', '.join(laws)}")
-        self.sims = [Simulator(model, p, settings) for p in params]
+        # environments given the same parameter set share its simulator (an objective passes one
+        # parameter set per run); the batch reads their parameters, the states are its own
+        made: dict[int, Simulator] = {}
+        for p in params:
+            if id(p) not in made:
+                made[id(p)] = Simulator(model, p, settings)
+        self.sims = [made[id(p)] for p in params]
         first = self.sims[0]
         self.settings = first.settings
         self.model = first.model
@@ -71,7 +77,7 @@ class BatchSimulator:
         self._first = first
 
     def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float, *,
-                record_every: int = 0, goal_index: np.ndarray | None = None
+                record_every: int = 0, goal_index: np.ndarray | None = None, divergence: str = "raise"
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Step every environment for ``duration`` [s] with servo goals per control tick.
 
@@ -83,6 +89,10 @@ class BatchSimulator:
             duration: simulated time [s].
             record_every: record configurations and encoder readings every this many physics
                 steps (0: record only the final state).
+            divergence: ``"raise"``: an environment that diverges stops the rollout;
+                ``"mask"``: its records and final state are all NaN and the others go on
+                unaffected (it restarts from its initial state so that the shared arrays stay
+                finite; what it computes after that is discarded).
 
         Returns:
             (Q, V, Q_rec, M_rec, C_rec): final (N, nq) configurations and (N, nv) velocities, and
@@ -91,8 +101,11 @@ class BatchSimulator:
             zero at the initial state), the first record being the initial state.
 
         Raises:
-            InputError: shape mismatch. RuntimeError: an environment diverged (names which).
+            InputError: shape mismatch or an unknown ``divergence``. RuntimeError: an environment
+            diverged (names which) and ``divergence`` is ``"raise"``.
         """
+        if divergence not in ("raise", "mask"):
+            raise InputError(f"divergence must be 'raise' or 'mask', got {divergence!r}")
         n = len(self.sims)
         s, f = self.settings, self._first
         n_steps = int(round(duration / s.dt))
@@ -110,12 +123,12 @@ class BatchSimulator:
         act, ground = np.ascontiguousarray(self.act[slots]), np.ascontiguousarray(self.ground[slots])
         Q = np.ascontiguousarray(np.stack([st.q for st in states]))
         V = np.ascontiguousarray(np.stack([st.v for st in states]))
-        Qn, Vn = np.empty_like(Q), np.empty_like(V)
         TAU = np.zeros_like(V)
         A = np.empty((self.model.nv, n), order="F")
         integ = np.stack([st.integ for st in states])
         prev = np.stack([st.prev_err for st in states])
         duty = np.stack([st.duty for st in states])
+        dead = np.zeros(n, dtype=np.bool_)  # masked environments that diverged
         cur = np.zeros_like(duty)
         status = np.zeros(n, dtype=np.int64)
         X = np.empty((n, len(self.model.features), 3))
@@ -139,17 +152,32 @@ class BatchSimulator:
         M_rec = np.empty((n_rec, n, nj))
         C_rec = np.empty((n_rec, n, nj))
         offset = act[:, :, K.A_ENC_OFFSET]
+        aba_args = [(pool, Q[a:b].T, V[a:b].T, TAU[a:b].T, A[:, a:b]) for a, b, pool in self._groups]
         for i in range(n_steps + 1):
+            if i % every == 0:
+                C_rec[i // every] = cur  # the current of step i - 1, before step i's forces replace it
+            g = goals[min(i // sub, len(goals) - 1)]
+            last = i == n_steps
+            # step i - 1's update in place, then step i's forces
+            K.batch_step(i, last, i % sub == 0, Q, V, A.T, g, gidx, integ, prev, duty, on, act, f.scal, ground,
+                            self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
+                            TAU, cur, X, F, KR, KV, status)
+            if status.any():
+                if divergence == "raise":
+                    bad = np.flatnonzero(status[back])
+                    raise RuntimeError(f"environments {bad.tolist()} diverged by t = {i * s.dt:.4f} s "
+                                       f"(status {status[back][bad].tolist()})")
+                for k in np.flatnonzero(status):
+                    dead[k] = True  # restarted, its forces those of its last step: finite, discarded
+                    st = states[k]
+                    Q[k], V[k], integ[k], prev[k], duty[k] = st.q, st.v, st.integ, st.prev_err, st.duty
+                    if soft:
+                        WARM[k] = 0.0
             if i % every == 0:
                 Q_rec[i // every] = Q
                 M_rec[i // every] = Q[:, nq - nj:] + offset
-                C_rec[i // every] = cur
-            if i == n_steps:
+            if last:
                 break
-            g = goals[min(i // sub, len(goals) - 1)]
-            K.batch_pre_step(i % sub == 0, Q, V, g, gidx, integ, prev, duty, on, act, f.scal, ground,
-                             self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
-                             TAU, cur, X, F, KR, KV, status)
             if soft:
                 for (a, b, pool), (pm, data) in zip(self._groups, self._models):
                     pin.rneaInParallel(self.threads, pool, Q[a:b].T, V[a:b].T, ZERO[:, a:b], NLE[:, a:b])
@@ -159,13 +187,8 @@ class BatchSimulator:
                                                   f._chain_i[:, 2], f._feat_i[:, 0], X, KR, KV, ground,
                                                   K.SOFT_LAWS[self._first.contact_law], WEIGHT, WARM, A.T)
             else:
-                for a, b, pool in self._groups:
-                    pin.abaInParallel(self.threads, pool, Q[a:b].T, V[a:b].T, TAU[a:b].T, A[:, a:b])
-            K.batch_post_step(Q, V, A.T, f.scal, self.model.chain.floating, Qn, Vn, status)
-            if status.any():
-                bad = np.flatnonzero(status[back])
-                raise RuntimeError(f"environments {bad.tolist()} diverged at t = {i * s.dt:.4f} s (status "
-                                   f"{status[back][bad].tolist()})")
-            Q, Qn = Qn, Q
-            V, Vn = Vn, V
+                for pool, q_t, v_t, tau_t, a_t in aba_args:
+                    pin.abaInParallel(self.threads, pool, q_t, v_t, tau_t, a_t)
+        Q[dead] = V[dead] = np.nan
+        Q_rec[:, dead] = M_rec[:, dead] = C_rec[:, dead] = np.nan
         return Q[back], V[back], Q_rec[:, back], M_rec[:, back], C_rec[:, back]

@@ -1,6 +1,8 @@
 """Batched rollouts equal single-environment rollouts (the fast path against the plain one)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
@@ -53,3 +55,24 @@ def test_a_batch_needs_one_state_per_environment(cobra):
     batch = BatchSimulator(cobra, [ModelParameters.nominal()] * 2)
     with pytest.raises(InputError, match="2 initial states"):
         batch.rollout([batch.sims[0].rest_state()], np.zeros((1, 2, 11)), 0.01)
+
+
+def test_a_masked_divergence_leaves_the_other_environments_bit_for_bit(cobra):
+    # environment 1 starts far above the speed limit: it diverges at its first step
+    params = [ModelParameters.nominal().with_values(mu_c=mu) for mu in (0.2, 0.3, 0.4)]
+    batch = BatchSimulator(cobra, params, threads=2)
+    states = [s.rest_state() for s in batch.sims]
+    states[1] = dataclasses.replace(states[1], v=np.full_like(states[1].v, 1e4))
+    table = SidewindingGait(0.5).q_ref(np.arange(301) * 1e-3)
+    goals = np.repeat(table[:, None, :], 3, axis=1)
+    with pytest.raises(RuntimeError, match=r"environments \[1\] diverged"):
+        batch.rollout(states, goals, 0.3, record_every=10)
+    Q, V, Q_rec, M_rec, C_rec = batch.rollout(states, goals, 0.3, record_every=10, divergence="mask")
+    assert np.isnan(Q[1]).all() and np.isnan(V[1]).all()
+    assert np.isnan(Q_rec[:, 1]).all() and np.isnan(M_rec[:, 1]).all() and np.isnan(C_rec[:, 1]).all()
+    healthy = BatchSimulator(cobra, [params[0], params[2]], threads=2)
+    Qh, Vh, Qh_rec, Mh_rec, _ = healthy.rollout([states[0], states[2]], goals[:, [0, 2]], 0.3, record_every=10)
+    assert np.array_equal(Q[[0, 2]], Qh) and np.array_equal(V[[0, 2]], Vh)
+    assert np.array_equal(Q_rec[:, [0, 2]], Qh_rec) and np.array_equal(M_rec[:, [0, 2]], Mh_rec)
+    with pytest.raises(InputError, match="divergence must be"):
+        batch.rollout(states, goals, 0.3, divergence="ignore")

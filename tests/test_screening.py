@@ -7,7 +7,7 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.generators.dataset import RunPlan, record
-from sysid.discrepancy.diagnose import screening_start, torque_demand, unbent
+from sysid.discrepancy.diagnose import _costs, screening_start, torque_demand, unbent
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.identification.lsq import fit_lsq
 from sysid.identification.objective import Objective
@@ -78,3 +78,22 @@ def test_a_limit_acts_just_below_the_torque_demand_and_not_above_it():
     free = cost(runs, TRUTH)
     assert cost(runs, LIBRARY.transform(TRUTH, {"torque_saturation": 1.01 * demand})) == pytest.approx(free, rel=1e-9)
     assert cost(runs, LIBRARY.transform(TRUTH, {"torque_saturation": 0.95 * demand})) > 1.05 * free
+
+
+def test_a_diverging_row_costs_infinity_and_leaves_the_others_as_evaluated_alone():
+    """The screening's batched costs: a parameter vector whose simulation blows up (the softest
+    ground under the strongest, least inertial drive) costs infinity, and the other rows of the
+    same batch cost exactly what they cost evaluated on their own."""
+    runs = [r.slice_time(float(r.t[0]), float(r.t[0]) + 1.0) for r in measured(TRUTH)]
+    every = ModelParameters.nominal().with_frozen(free=list(ModelParameters.nominal().names))
+    objective = Objective(runs, every)
+    wild = every.from_unit(np.array([1.0 if name in ("joint_damping", "motor_km", "k2", "mu_c", "mu_s",
+                                                      "friction_cone", "contact_rounding") else 0.0
+                                     for name in every.free_names])).as_vector()
+    with pytest.raises(RuntimeError, match="diverged"):
+        objective.residuals(wild[None])
+    healthy = [every.as_vector(), every.with_values(mu_c=0.2).as_vector()]
+    costs = _costs(objective, np.array([healthy[0], wild, healthy[1]]))
+    alone = [float(r @ r) for r in (objective.residuals(x[None])[0] for x in healthy)]
+    assert costs[1] == np.inf
+    assert costs[0] == alone[0] and costs[2] == alone[1] and alone[0] != alone[1]

@@ -377,9 +377,10 @@ def _costs(objective: Objective, X: np.ndarray) -> np.ndarray:
     """Sums of squared residuals of the rows of ``X`` (one batched evaluation; a row whose
     simulation diverges, or that is not a valid parameter vector, costs infinity)."""
     try:
-        return np.array([float(r @ r) for r in objective.residuals(X)])
-    except (RuntimeError, InputError):  # an extreme value diverged: try them one by one
+        costs = np.array([float(r @ r) for r in objective.residuals(X, divergence="mask")])
+    except InputError:  # a row is no valid parameter set: the others one by one
         return np.array([_cost_or_inf(objective, x) for x in X])
+    return np.where(np.isnan(costs), np.inf, costs)
 
 
 #: Levenberg-Marquardt dampings of a profile's step, tried together (:func:`_profiles`).

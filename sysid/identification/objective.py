@@ -131,6 +131,7 @@ class Simulated:
     head_xy: list[np.ndarray]   # per run (S, 2)
     q: list[np.ndarray]         # per run (S, 11)
     current: list[np.ndarray]   # per run (S, 11) motor currents [A]
+    diverged: bool = False      # a run diverged (``divergence="mask"``): the samples are NaN
 
 
 @dataclass(frozen=True)
@@ -145,8 +146,13 @@ class ObjectiveSpec:
     threads: int = 2
 
 
-def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
-    """Simulate every run for each row of ``X`` (k, d) of free-parameter values (physical units)."""
+def simulate_batch(spec: ObjectiveSpec, X: np.ndarray, divergence: str = "raise") -> list[Simulated]:
+    """Simulate every run for each row of ``X`` (k, d) of free-parameter values (physical units).
+
+    ``divergence``: ``"raise"`` (a RuntimeError when any simulation diverges) or ``"mask"``
+    (a row whose simulation of any run diverged comes back ``diverged``, the others as they are;
+    :meth:`integrators.batch.BatchSimulator.rollout`).
+    """
     model = CobraModel.load(spec.urdf or DEFAULT_URDF)  # once per process and file (cached)
     sets = [spec.params.update_from_vector(x) for x in np.atleast_2d(X)]
     targets = spec.targets
@@ -176,7 +182,9 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
             pose = targets[r].start.pose(model, reading)
             rest[key] = sim.rest_state(pose.q_joints, head_xy=pose.head_xy, base_quat_wxyz=pose.head_quat_wxyz)
         states.append(rest[key])
-    _, _, q_rec, m_rec, c_rec = batch.rollout(states, goals, duration, record_every=every, goal_index=goal_index)
+    _, _, q_rec, m_rec, c_rec = batch.rollout(states, goals, duration, record_every=every, goal_index=goal_index,
+                                              divergence=divergence)
+    dead = np.isnan(q_rec[0]).any(axis=1)  # masked: the initial record of a diverged environment is NaN too
     t_rec = np.arange(q_rec.shape[0]) * every * spec.settings.dt
     out = []
     for k in range(len(sets)):
@@ -186,15 +194,18 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray) -> list[Simulated]:
             heads.append(interpolate_rows(tg.t_samples, t_rec, q_rec[:, e, :2]))
             joints.append(interpolate_rows(tg.t_samples, t_rec, m_rec[:, e]))
             currents.append(interpolate_rows(tg.t_samples, t_rec, c_rec[:, e]))
-        out.append(Simulated(heads, joints, currents))
+        out.append(Simulated(heads, joints, currents, diverged=bool(dead[k * n_runs:(k + 1) * n_runs].any())))
     return out
 
 
 def residual_vector(spec: ObjectiveSpec, sim: Simulated) -> np.ndarray:
     """Stacked weighted residuals (head xy over time, joints over time, and with
     ``Weights.use_current`` the motor currents over time) of one parameter vector; missing
-    measurements (motion-capture gaps, current samples) are zero residuals."""
+    measurements (motion-capture gaps, current samples) are zero residuals; a ``diverged``
+    simulation's residuals are all NaN."""
     w = spec.weights
+    if sim.diverged:
+        return np.full(sum(tg.residual_size(w) for tg in spec.targets), np.nan)
     parts = []
     for tg, head, q, current in zip(spec.targets, sim.head_xy, sim.q, sim.current):
         dh = (head - tg.head_xy) / w.head_scale_m
@@ -343,9 +354,9 @@ def scalar_terms(spec: ObjectiveSpec, sim: Simulated) -> ObjectiveTerms:
                                    float(np.mean(cpgs)), spec.weights)
 
 
-def _evaluate_chunk(job: tuple[ObjectiveSpec, np.ndarray, bool]) -> list[np.ndarray | ObjectiveTerms]:
-    spec, X, want_residuals = job
-    sims = simulate_batch(spec, X)
+def _evaluate_chunk(job: tuple[ObjectiveSpec, np.ndarray, bool, str]) -> list[np.ndarray | ObjectiveTerms]:
+    spec, X, want_residuals, divergence = job
+    sims = simulate_batch(spec, X, divergence)
     return [residual_vector(spec, s) if want_residuals else scalar_terms(spec, s) for s in sims]
 
 
@@ -466,16 +477,21 @@ class Objective:
     def names(self) -> tuple[str, ...]:
         return self.params.free_names
 
-    def _map(self, X: np.ndarray, want_residuals: bool) -> list:
+    def _map(self, X: np.ndarray, want_residuals: bool, divergence: str = "raise") -> list:
         X = np.atleast_2d(np.asarray(X, dtype=float))
         self.evaluations += len(X)
         chunks = np.array_split(np.arange(len(X)), min(len(X), self.executor.workers))
-        results = self.executor.map(_evaluate_chunk, [(self.spec, X[c], want_residuals) for c in chunks if len(c)])
+        results = self.executor.map(_evaluate_chunk, [(self.spec, X[c], want_residuals, divergence)
+                                                      for c in chunks if len(c)])
         return [item for chunk in results for item in chunk]
 
-    def residuals(self, X: np.ndarray) -> np.ndarray:
-        """(k, m) residual vectors for (k, d) free-parameter values in physical units."""
-        return np.array(self._map(X, True))
+    def residuals(self, X: np.ndarray, divergence: str = "raise") -> np.ndarray:
+        """(k, m) residual vectors for (k, d) free-parameter values in physical units.
+
+        ``divergence``: ``"raise"`` (a RuntimeError when any row's simulation diverges) or
+        ``"mask"`` (the rows whose simulation diverged are NaN, the others unaffected).
+        """
+        return np.array(self._map(X, True, divergence))
 
     def run_costs(self, x: np.ndarray) -> np.ndarray:
         """Sum of squared residuals of each run (in the order of ``runs``) for one parameter vector."""
