@@ -35,6 +35,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/mujoco_robustness.py
 	$(PY) benchmarks/mujoco_robustness.py --contact stiff
 	$(PY) benchmarks/diagnose_matrix.py
+	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint
+	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law choose
+	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint --mujoco-contact stiff
 	$(PY) benchmarks/effect_signal.py
 	$(PY) benchmarks/contact_time_constant.py
 	$(PY) benchmarks/contact_law.py

@@ -1,7 +1,8 @@
 """Batched rollouts: many environments stepped together (Pinocchio ``abaInParallel``).
 
-Environments may differ in every parameter and in their state and commands. The forces of all
-environments are one compiled call per step and so is the update. Parameters that change the
+Environments may differ in every parameter and in their state and commands. The update of all
+environments from the last step and their forces for this one are one compiled call per step
+(``kernels.batch_step``), the dynamics one Pinocchio call per model group. Parameters that change the
 rigid-body model itself (the transmission inertia ``armature`` and ``link_mass_error``) split
 the batch into model groups: Pinocchio's ``ModelPool`` hands one model to each thread, not to
 each batch entry, so every group's dynamics is its own ``abaInParallel`` call on its own pool.
@@ -10,7 +11,7 @@ with the others instead of in a rollout of its own.
 """
 from __future__ import annotations
 
-from typing import Sequence
+from typing import Literal, Sequence
 
 import numpy as np
 import pinocchio as pin
@@ -19,7 +20,10 @@ from cobra_model.errors import InputError
 from cobra_model.model import RobotModel
 from cobra_model.parameters import ModelParameters
 from integrators import kernels as K
-from integrators.simulator import SimSettings, SimState, Simulator, effect_value
+from integrators.simulator import SimSettings, SimState, SimulationDiverged, Simulator, effect_value
+
+#: What a batch does when an environment diverges (:meth:`BatchSimulator.rollout`).
+Divergence = Literal["raise", "mask"]
 
 
 def model_key(params: ModelParameters) -> tuple:
@@ -77,7 +81,7 @@ class BatchSimulator:
         self._first = first
 
     def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float, *,
-                record_every: int = 0, goal_index: np.ndarray | None = None, divergence: str = "raise"
+                record_every: int = 0, goal_index: np.ndarray | None = None, divergence: Divergence = "raise"
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Step every environment for ``duration`` [s] with servo goals per control tick.
 
@@ -101,8 +105,10 @@ class BatchSimulator:
             zero at the initial state), the first record being the initial state.
 
         Raises:
-            InputError: shape mismatch or an unknown ``divergence``. RuntimeError: an environment
-            diverged (names which) and ``divergence`` is ``"raise"``.
+            InputError: shape mismatch or an unknown ``divergence``. SimulationDiverged (a
+            RuntimeError): an environment diverged and ``divergence`` is ``"raise"``; it names
+            the environments, and for the first the time and the contact point or velocity
+            coordinate that blew up.
         """
         if divergence not in ("raise", "mask"):
             raise InputError(f"divergence must be 'raise' or 'mask', got {divergence!r}")
@@ -160,13 +166,15 @@ class BatchSimulator:
             last = i == n_steps
             # step i - 1's update in place, then step i's forces
             K.batch_step(i, last, i % sub == 0, Q, V, A.T, g, gidx, integ, prev, duty, on, act, f.scal, ground,
-                            self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
-                            TAU, cur, X, F, KR, KV, status)
+                         self.model.chain.floating, f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f,
+                         TAU, cur, X, F, KR, KV, status)
             if status.any():
                 if divergence == "raise":
                     bad = np.flatnonzero(status[back])
-                    raise RuntimeError(f"environments {bad.tolist()} diverged by t = {i * s.dt:.4f} s "
-                                       f"(status {status[back][bad].tolist()})")
+                    k = back[bad[0]]
+                    detail = self.sims[bad[0]].divergence_message(int(status[k]), i * s.dt, V[k], X[k])
+                    raise SimulationDiverged(f"environments {bad.tolist()} of {n} diverged; environment {bad[0]}: "
+                                             f"{detail}")
                 for k in np.flatnonzero(status):
                     dead[k] = True  # restarted, its forces those of its last step: finite, discarded
                     st = states[k]

@@ -398,22 +398,24 @@ class Simulator:
 
     # -- stepping ---------------------------------------------------------------------------
     def _raise(self, status: int, t: float, q: np.ndarray, v: np.ndarray) -> None:
+        raise SimulationDiverged(self.divergence_message(status, t, v, self._X))
+
+    def divergence_message(self, status: int, t: float, v: np.ndarray, X: np.ndarray) -> str:
+        """What blew up, where and when: the deepest contact point of ``X`` (n_features, 3)
+        [m] for a penetration, else the velocity coordinates of ``v`` (nv,) that are not finite
+        or the fastest, with the largest stable steps; ``t`` [s] is the time of the state."""
         if status == K.STATUS_PENETRATION:
-            k = int(np.argmin(self._X[:, 2]))
-            raise SimulationDiverged(
-                f"at t = {t:.4f} s contact point {self.model.features.names[k]} penetrated "
-                f"{-self._X[k, 2] * 100:.2f} cm into the ground (limit "
-                f"{self.settings.max_depth * 100:.1f} cm): ground too soft or the step diverged"
-            )
+            k = int(np.argmin(X[:, 2]))
+            return (f"at t = {t:.4f} s contact point {self.model.features.names[k]} penetrated "
+                    f"{-X[k, 2] * 100:.2f} cm into the ground (limit {self.settings.max_depth * 100:.1f} cm): "
+                    f"ground too soft or the step diverged")
         if status == K.STATUS_NONFINITE:
             bad = np.flatnonzero(~np.isfinite(v))
-            raise SimulationDiverged(f"at t = {t:.4f} s velocity became NaN/inf at coordinates {bad.tolist()} "
-                                     f"({self._coordinate_names(bad)}); {self._stable_steps()}")
+            return (f"at t = {t:.4f} s velocity became NaN/inf at coordinates {bad.tolist()} "
+                    f"({self._coordinate_names(bad)}); {self._stable_steps()}")
         i = int(np.argmax(np.abs(v)))
-        raise SimulationDiverged(
-            f"at t = {t:.4f} s velocity coordinate {i} ({self._coordinate_names([i])}) reached {v[i]:.3g} (limit "
-            f"{self.settings.max_speed}): the step is unstable; {self._stable_steps()}"
-        )
+        return (f"at t = {t:.4f} s velocity coordinate {i} ({self._coordinate_names([i])}) reached {v[i]:.3g} "
+                f"(limit {self.settings.max_speed}): the step is unstable; {self._stable_steps()}")
 
     def _coordinate_names(self, indices) -> str:
         """Names of velocity coordinates: the root's linear/angular components or the joint names."""

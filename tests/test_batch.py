@@ -9,6 +9,7 @@ import pytest
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from integrators.batch import BatchSimulator
+from integrators.simulator import SimulationDiverged
 from sysid.discrepancy.effects import EffectLibrary
 
 
@@ -65,7 +66,8 @@ def test_a_masked_divergence_leaves_the_other_environments_bit_for_bit(cobra):
     states[1] = dataclasses.replace(states[1], v=np.full_like(states[1].v, 1e4))
     table = SidewindingGait(0.5).q_ref(np.arange(301) * 1e-3)
     goals = np.repeat(table[:, None, :], 3, axis=1)
-    with pytest.raises(RuntimeError, match=r"environments \[1\] diverged"):
+    with pytest.raises(SimulationDiverged, match=r"environments \[1\] of 3 diverged; environment 1: at t = 0\.\d+ s "
+                                             r"velocity coordinate \d+ \(.*\) reached"):
         batch.rollout(states, goals, 0.3, record_every=10)
     Q, V, Q_rec, M_rec, C_rec = batch.rollout(states, goals, 0.3, record_every=10, divergence="mask")
     assert np.isnan(Q[1]).all() and np.isnan(V[1]).all()

@@ -28,19 +28,23 @@ def _truth() -> ModelParameters:
 @dataclass
 class BowlObjective:
     """A stand-in objective without simulation: total = |z - target|_1 in unit coordinates;
-    parameter vectors with ``z[0] > diverge_above`` raise as a diverging simulation does."""
+    parameter vectors with ``z[0] > diverge_above`` diverge as a simulation does (raise, or
+    None with ``divergence="mask"``)."""
 
     params: ModelParameters
     target: np.ndarray
     diverge_above: float = 2.0
 
-    def terms(self, X: np.ndarray) -> list[ObjectiveTerms]:
+    def terms(self, X: np.ndarray, divergence: str = "raise") -> list[ObjectiveTerms | None]:
         """The objective's terms for the rows of X (physical free-parameter values)."""
-        out = []
+        out: list[ObjectiveTerms | None] = []
         for x in np.atleast_2d(X):
             z = self.params.update_from_vector(x).to_unit()
             if z[0] > self.diverge_above:
-                raise RuntimeError("diverged")
+                if divergence == "raise":
+                    raise RuntimeError("diverged")
+                out.append(None)
+                continue
             err = float(np.abs(z - self.target).sum())
             out.append(ObjectiveTerms(err, err / 2, err / 4, 0.0, external=err, internal=0.0, total=err))
         return out

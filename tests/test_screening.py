@@ -97,3 +97,6 @@ def test_a_diverging_row_costs_infinity_and_leaves_the_others_as_evaluated_alone
     alone = [float(r @ r) for r in (objective.residuals(x[None])[0] for x in healthy)]
     assert costs[1] == np.inf
     assert costs[0] == alone[0] and costs[2] == alone[1] and alone[0] != alone[1]
+    # the reward terms (PPO's) the same way: None for the diverging row
+    masked = objective.terms(np.array([wild, healthy[0]]), divergence="mask")
+    assert masked[0] is None and masked[1] == objective.terms(healthy[0][None])[0]

@@ -17,6 +17,7 @@ from gymnasium import spaces
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
+from integrators.batch import Divergence
 from sysid.identification.objective import OBSERVED_TERMS, ObjectiveTerms
 
 #: Observed terms are ``log10(term / reference term)`` clipped to +-this many decades, then
@@ -31,8 +32,9 @@ class TermsObjective(Protocol):
 
     params: ModelParameters
 
-    def terms(self, X: np.ndarray) -> list[ObjectiveTerms]:
-        """Objective terms per row of X."""
+    def terms(self, X: np.ndarray, divergence: Divergence = "raise") -> list[ObjectiveTerms | None]:
+        """Objective terms per row of X; a row whose simulation diverges raises a RuntimeError,
+        or with ``divergence="mask"`` is None."""
         ...
 
 

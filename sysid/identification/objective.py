@@ -36,7 +36,7 @@ from cobra_model.resample import interpolate_rows
 from cobra_model.run import Run
 from cobra_model.servo import PULSES_PER_REV
 from integrators import kernels as K
-from integrators.batch import BatchSimulator
+from integrators.batch import BatchSimulator, Divergence
 from integrators.simulate import InitialPose, StartObservation, command_ticks
 from integrators.simulator import SimSettings, SimState, contact_resolved, delay_commands, effect_value
 from sysid.identification.executor import Executor, LocalExecutor
@@ -146,7 +146,7 @@ class ObjectiveSpec:
     threads: int = 2
 
 
-def simulate_batch(spec: ObjectiveSpec, X: np.ndarray, divergence: str = "raise") -> list[Simulated]:
+def simulate_batch(spec: ObjectiveSpec, X: np.ndarray, divergence: Divergence = "raise") -> list[Simulated]:
     """Simulate every run for each row of ``X`` (k, d) of free-parameter values (physical units).
 
     ``divergence``: ``"raise"`` (a RuntimeError when any simulation diverges) or ``"mask"``
@@ -354,10 +354,13 @@ def scalar_terms(spec: ObjectiveSpec, sim: Simulated) -> ObjectiveTerms:
                                    float(np.mean(cpgs)), spec.weights)
 
 
-def _evaluate_chunk(job: tuple[ObjectiveSpec, np.ndarray, bool, str]) -> list[np.ndarray | ObjectiveTerms]:
+def _evaluate_chunk(job: tuple[ObjectiveSpec, np.ndarray, bool, Divergence]
+                    ) -> list[np.ndarray] | list[ObjectiveTerms | None]:
     spec, X, want_residuals, divergence = job
     sims = simulate_batch(spec, X, divergence)
-    return [residual_vector(spec, s) if want_residuals else scalar_terms(spec, s) for s in sims]
+    if want_residuals:
+        return [residual_vector(spec, s) for s in sims]
+    return [None if s.diverged else scalar_terms(spec, s) for s in sims]
 
 
 @dataclass
@@ -477,7 +480,7 @@ class Objective:
     def names(self) -> tuple[str, ...]:
         return self.params.free_names
 
-    def _map(self, X: np.ndarray, want_residuals: bool, divergence: str = "raise") -> list:
+    def _map(self, X: np.ndarray, want_residuals: bool, divergence: Divergence = "raise") -> list:
         X = np.atleast_2d(np.asarray(X, dtype=float))
         self.evaluations += len(X)
         chunks = np.array_split(np.arange(len(X)), min(len(X), self.executor.workers))
@@ -485,7 +488,7 @@ class Objective:
                                                       for c in chunks if len(c)])
         return [item for chunk in results for item in chunk]
 
-    def residuals(self, X: np.ndarray, divergence: str = "raise") -> np.ndarray:
+    def residuals(self, X: np.ndarray, divergence: Divergence = "raise") -> np.ndarray:
         """(k, m) residual vectors for (k, d) free-parameter values in physical units.
 
         ``divergence``: ``"raise"`` (a RuntimeError when any row's simulation diverges) or
@@ -517,9 +520,10 @@ class Objective:
         """Residuals that are motion-capture gaps (:func:`head_gaps`)."""
         return head_gaps(self.spec)
 
-    def terms(self, X: np.ndarray) -> list[ObjectiveTerms]:
-        """The paper's reward terms for each row of X."""
-        return self._map(X, False)
+    def terms(self, X: np.ndarray, divergence: Divergence = "raise") -> list[ObjectiveTerms | None]:
+        """The paper's reward terms for each row of X (with ``divergence="mask"``, None for a
+        row whose simulation diverged; see :meth:`residuals`)."""
+        return self._map(X, False, divergence)
 
     def __call__(self, x: np.ndarray) -> float:
         """Scalar objective (external + internal) of one parameter vector."""

@@ -111,8 +111,8 @@ class BatchedTuningVecEnv(VecEnv):
     # -- evaluation ---------------------------------------------------------------------------
     def _evaluate(self, Z: Sequence[np.ndarray]) -> list[ObjectiveTerms | None]:
         """Terms of each row of unit coordinates ``Z`` in one batched evaluation (None for an
-        infeasible row, a diverging simulation or a non-finite total; after a divergence the
-        rows are evaluated one by one to find which)."""
+        infeasible row, a diverging simulation or a non-finite total; a diverging row does not
+        stop the others: ``divergence="mask"``)."""
         params = self.objective.params
         ok = [feasible(params, z) for z in Z]
         rows = [params.from_unit(z).as_vector() for z, good in zip(Z, ok) if good]
@@ -120,16 +120,7 @@ class BatchedTuningVecEnv(VecEnv):
         if not rows:
             return out
         self.evaluations += len(rows)
-        try:
-            found: list[ObjectiveTerms | None] = list(self.objective.terms(np.array(rows)))
-        except RuntimeError:  # a diverging row fails the batch
-            found = []
-            for x in rows:
-                try:
-                    found.append(self.objective.terms(x[None])[0])
-                except RuntimeError:
-                    found.append(None)
-        it = iter(found)
+        it = iter(self.objective.terms(np.array(rows), divergence="mask"))
         for i, good in enumerate(ok):
             if good:
                 t = next(it)
