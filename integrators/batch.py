@@ -11,7 +11,7 @@ with the others instead of in a rollout of its own.
 """
 from __future__ import annotations
 
-from typing import Literal, Sequence
+from typing import Literal, Sequence, get_args
 
 import numpy as np
 import pinocchio as pin
@@ -110,8 +110,9 @@ class BatchSimulator:
             the environments, and for the first the time and the contact point or velocity
             coordinate that blew up.
         """
-        if divergence not in ("raise", "mask"):
-            raise InputError(f"divergence must be 'raise' or 'mask', got {divergence!r}")
+        if divergence not in get_args(Divergence):
+            raise InputError(f"divergence must be one of {', '.join(map(repr, get_args(Divergence)))}, "
+                             f"got {divergence!r}")
         n = len(self.sims)
         s, f = self.settings, self._first
         n_steps = int(round(duration / s.dt))
