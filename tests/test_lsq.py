@@ -144,7 +144,7 @@ class _LinearObjective:
         self.params, self.target, self.evaluations = params, target, 0
         self.spec = SimpleNamespace(targets=[SimpleNamespace(duration=1.0)])
 
-    def residuals(self, X: np.ndarray) -> np.ndarray:
+    def residuals(self, X: np.ndarray, divergence: str = "raise") -> np.ndarray:
         self.evaluations += len(X)
         Z = np.array([self.params.update_from_vector(x).to_unit() for x in np.atleast_2d(X)])
         return np.repeat(10.0 * (Z - self.target), 3, axis=1)
@@ -152,13 +152,14 @@ class _LinearObjective:
 
 @pytest.mark.parametrize("radius, first_steps", [(0.1, [0.1, 0.2]), (1.0, [0.36])])
 def test_the_trust_region_starts_small_and_grows_where_the_model_predicts_well(radius, first_steps):
+    from sysid.identification.lockstep import run
     from sysid.identification.lsq import _levenberg_marquardt
     params = ModelParameters.nominal().with_frozen(free=["k1"])
     z0 = params.to_unit()
     objective = _LinearObjective(params, z0 + 0.36)
-    lm = _levenberg_marquardt(objective, z0, max_iterations=8, budget_seconds=None, fd_step=1e-2,
-                              trust_radius=radius, cost_tol=1e-9, step_tol=1e-9, progress=None,
-                              first_iteration=0, evaluations_before=0, t_start=0.0)
+    lm = run(_levenberg_marquardt(objective, z0, max_iterations=8, budget_seconds=None, fd_step=1e-2,
+                                  trust_radius=radius, cost_tol=1e-9, step_tol=1e-9, progress=None,
+                                  first_iteration=0, evaluations_before=0, t_start=0.0))
     steps = [e.step_norm for e in lm.log if e.accepted]
     # from 0.1 of the range, doubled after each step the model predicted; whole range: one step
     assert steps[:len(first_steps)] == pytest.approx(first_steps, rel=1e-3)

@@ -433,7 +433,8 @@ def test_a_fit_from_shapes_starts_at_each_rounding_when_it_is_free_and_keeps_the
     shapes = fit_from_shapes(Objective(runs, free, Weights()), fake_fit)
     assert started == list(ROUNDING_STARTS_M)                           # three starts: no screen
     assert shapes.best.params.contact_rounding == ROUNDING_STARTS_M[-1]  # 0.045 m is nearest 0.04 m
-    assert shapes.seconds == 3.0 and [s.values["contact_rounding"] for s in shapes.starts] == list(ROUNDING_STARTS_M)
+    assert 0.0 < shapes.seconds < 60.0  # the wall time of its fits, measured
+    assert [s.values["contact_rounding"] for s in shapes.starts] == list(ROUNDING_STARTS_M)
     assert all(s.screen_cost is None for s in shapes.starts)
     started.clear()
     fixed = ModelParameters.nominal().with_frozen(free=["mu_c"]).with_values(contact_rounding=0.01)
@@ -474,6 +475,5 @@ def test_a_soft_law_fit_starts_on_a_soft_and_the_stiffest_ground_and_screens_the
     assert sorted((tc, r) for _, tc, r, _ in wholes) == [(0.002, r) for r in (0.0, 0.0225, 0.045)]
     assert all(h > 2 * SCREEN_HORIZON_S and mu == pytest.approx(mu0 + 0.01) for h, _, _, mu in wholes)
     assert shapes.best.params.contact_rounding == 0.045 and shapes.best.params.mu_c == pytest.approx(mu0 + 0.02)
-    assert shapes.seconds == 9.0
     assert [s.cost is not None for s in shapes.starts] == [False] * 3 + [True] * 3
     assert all(s.screen_cost is not None for s in shapes.starts)

@@ -62,7 +62,8 @@ from integrators.simulate import rollout_like, simulate_like
 from integrators.simulator import Simulator
 from sysid.discrepancy.effects import Effect, EffectLibrary
 from sysid.identification.contact_choice import StartFit, fit_from_shapes
-from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq, forward_steps
+from sysid.identification.lockstep import Evaluate, Steps, run, run_together
+from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq, fit_lsq_steps, forward_steps
 from sysid.identification.objective import Objective, Weights
 from sysid.identification.splits import spread_over_gaits
 from sysid.gap.report import GapSummary, HeldOut, head_text, pair_held_out
@@ -376,10 +377,19 @@ def start_grid(effect: Effect, demand_nm: float | None = None, coarse: bool = Fa
 def _costs(objective: Objective, X: np.ndarray) -> np.ndarray:
     """Sums of squared residuals of the rows of ``X`` (one batched evaluation; a row whose
     simulation diverges, or that is not a valid parameter vector, costs infinity)."""
+    return run(_cost_steps(objective, X))
+
+
+def _cost_steps(objective: Objective, X: np.ndarray) -> Steps[np.ndarray]:
+    """:func:`_costs` as a computation (:mod:`sysid.identification.lockstep`)."""
     try:
-        costs = np.array([float(r @ r) for r in objective.residuals(X, divergence="mask")])
+        R = yield Evaluate(objective, X, "mask")
     except InputError:  # a row is no valid parameter set: the others one by one
-        return np.array([_cost_or_inf(objective, x) for x in X])
+        out = []
+        for x in X:
+            out.append((yield from _cost_or_inf(objective, x)))
+        return np.array(out)
+    costs = np.array([float(r @ r) for r in R])
     return np.where(np.isnan(costs), np.inf, costs)
 
 
@@ -388,12 +398,13 @@ PROFILE_DAMPINGS: tuple[float, ...] = (1e-2, 1e-1, 1.0)
 
 
 def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: Sequence[Run],
-              weights: Weights = Weights()) -> tuple[np.ndarray, list[ModelParameters]]:
+              weights: Weights = Weights()) -> Steps[tuple[np.ndarray, list[ModelParameters]]]:
     """One damped Gauss-Newton step of the other free parameters of ``trial`` with ``name`` held
     at each of ``values`` (a profile): the best cost of each on ``runs`` and its parameters.
 
     Batched: the finite-difference Jacobians at every value are one evaluation and the steps
-    at every value and damping (:data:`PROFILE_DAMPINGS`) another.
+    at every value and damping (:data:`PROFILE_DAMPINGS`) another (requests of a computation,
+    :mod:`sysid.identification.lockstep`).
     """
     objective = _capped(Objective(runs, trial, weights))
     free = list(trial.free_names)
@@ -417,7 +428,7 @@ def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: 
         return np.array([trial.from_unit(z).as_vector() for z in Z])
 
     try:
-        R = objective.residuals(as_x(rows))
+        R = yield Evaluate(objective, as_x(rows))
     except RuntimeError:  # a start diverged: no profile from it
         return np.full(len(values), np.inf), [trial.from_unit(z) for z in starts]
     trials = []
@@ -432,7 +443,7 @@ def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: 
             zt = z.copy()
             zt[others] = np.clip(z[others] + dz, 0.0, 1.0)
             trials.append(zt if feasible(trial, zt) else z)
-    costs = _costs(objective, as_x(trials)).reshape(len(values), len(PROFILE_DAMPINGS))
+    costs = (yield from _cost_steps(objective, as_x(trials))).reshape(len(values), len(PROFILE_DAMPINGS))
     pick = costs.argmin(axis=1)
     return (costs[np.arange(len(values)), pick],
             [trial.from_unit(trials[j * len(PROFILE_DAMPINGS) + c]) for j, c in enumerate(pick)])
@@ -449,7 +460,15 @@ def unbent(effect: Effect, current: ModelParameters, before: ModelParameters) ->
 
 def screening_start(effect: Effect, current: ModelParameters, before: ModelParameters, runs: Sequence[Run],
                     library: EffectLibrary, weights: Weights = Weights()) -> ModelParameters:
-    """Where a candidate's screening refit starts: the effect added to one of two bases.
+    """Where a candidate's screening refit starts (:func:`screening_steps`, its evaluations made
+    one after the other)."""
+    return run(screening_steps(effect, current, before, runs, library, weights))
+
+
+def screening_steps(effect: Effect, current: ModelParameters, before: ModelParameters, runs: Sequence[Run],
+                    library: EffectLibrary, weights: Weights = Weights()) -> Steps[ModelParameters]:
+    """Where a candidate's screening refit starts: the effect added to one of two bases (a
+    computation, :mod:`sysid.identification.lockstep`).
 
     - ``current``, the fitted model, with the effect inactive or at the grid value of lowest
       cost (inactive when every grid value makes the fit worse);
@@ -474,16 +493,16 @@ def screening_start(effect: Effect, current: ModelParameters, before: ModelParam
     demands = ((torque_demand(current, objective.runs), torque_demand(base, objective.runs))
                if effect.acts_below_demand else (None, None))
     values = [effect.parameter.value, *start_grid(effect, demand_nm=demands[0])]
-    costs = _costs(objective, np.array([trial.with_values(**{name: v}).as_vector() for v in values]))
+    costs = yield from _cost_steps(objective, np.array([trial.with_values(**{name: v}).as_vector() for v in values]))
     k = int(np.argmin(costs))
     best, best_cost = trial.with_values(**{name: values[k]}), costs[k]
     coarse = start_grid(effect, demand_nm=demands[1], coarse=True)
     unbent_trial = library.transform(base, {effect.name: coarse[0]})
-    raw = _costs(_capped(Objective(runs, unbent_trial, weights)),
-                 np.array([unbent_trial.with_values(**{name: v}).as_vector() for v in coarse]))
+    raw = yield from _cost_steps(_capped(Objective(runs, unbent_trial, weights)),
+                                 np.array([unbent_trial.with_values(**{name: v}).as_vector() for v in coarse]))
     distinct = [v for n, v in enumerate(coarse) if np.isfinite(raw[n]) and raw[n] not in set(raw[:n])]
     if distinct:
-        profiled, params = _profiles(unbent_trial, name, distinct, runs, weights)
+        profiled, params = yield from _profiles(unbent_trial, name, distinct, runs, weights)
         j = int(np.argmin(profiled))
         if profiled[j] < best_cost:
             best = params[j]
@@ -563,12 +582,19 @@ def switched_off(c: Candidate, effect: Effect) -> ModelParameters:
 
 
 def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: Weights) -> float:
+    """The share of candidate ``c``'s held-out cost that its effect carries itself
+    (:func:`effect_share_steps`, evaluated on its own)."""
+    return run(effect_share_steps(c, effect, holdout, weights))
+
+
+def effect_share_steps(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: Weights) -> Steps[float]:
     """The share of candidate ``c``'s held-out cost that its effect carries itself:
     ``1 - cost(c) / cost(c switched off)``, the other parameters left as the candidate's refit
     found them (no refit), the least of it over the parameters as they are
     and :data:`SHARE_PERTURBATIONS` perturbations of every other free parameter by
     :data:`SHARE_PERTURBATION_UNIT` of its range (each applied to both models, so that a pair
-    differs in the effect alone; a perturbed set that is no valid one is left out).
+    differs in the effect alone; a perturbed set that is no valid one is left out). A
+    computation (:mod:`sysid.identification.lockstep`).
 
     Physical reason: on a stiff ground, touchdowns and stick-slip transitions fall on other time
     steps after parameter changes far below anything the data resolve, so a single held-out
@@ -594,29 +620,36 @@ def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: 
         X_on.append(on.as_vector())
         X_off.append(on.with_values(**{p.name: p.value}).as_vector())
     # both models in one batch of the candidate's free set, the effect's entry at its inactive value
-    costs = _costs(Objective(list(holdout), c.params, weights), np.array(X_on + X_off))
+    costs = yield from _cost_steps(Objective(list(holdout), c.params, weights), np.array(X_on + X_off))
     cost_on, cost_off = costs[:len(X_on)], costs[len(X_on):]
     with np.errstate(divide="ignore", invalid="ignore"):
         shares = np.where(cost_off > 0, 1.0 - cost_on / cost_off, 0.0)
     return float(np.min(np.nan_to_num(shares, nan=-np.inf)))
 
 
-def _cost_or_inf(objective: Objective, x: np.ndarray) -> float:
-    """Sum of squared residuals at ``x``, infinite where the simulation diverges."""
+def _cost_or_inf(objective: Objective, x: np.ndarray) -> Steps[float]:
+    """Sum of squared residuals at ``x``, infinite where the simulation diverges (a computation)."""
     try:
-        r = objective.residuals(x[None])[0]
+        r = (yield Evaluate(objective, x[None]))[0]
     except (RuntimeError, InputError):
         return float("inf")
     return float(r @ r)
 
 
 def _screen_refit(start: ModelParameters, fit_set: Sequence[Run], holdout: Sequence[Run],
-                  iterations: int, weights: Weights) -> tuple[FitResult, np.ndarray]:
+                  iterations: int, weights: Weights) -> Steps[tuple[FitResult, np.ndarray]]:
     """A screening refit: ``start``'s free parameters on the fit runs' first
     :data:`SCREEN_HORIZON_S` (no horizon continuation), and the refit's held-out cost per run
-    (whole runs)."""
-    fit = fit_lsq(_capped(Objective(fit_set, start, weights)), max_iterations=iterations, horizons_s=())
-    return fit, Objective(list(holdout), fit.params, weights).run_costs(fit.params.as_vector())
+    (whole runs); a computation (:mod:`sysid.identification.lockstep`)."""
+    fit = yield from fit_lsq_steps(_capped(Objective(fit_set, start, weights)), max_iterations=iterations,
+                                   horizons_s=())
+    return fit, (yield from _held_out_costs(fit.params, holdout, weights))
+
+
+def _held_out_costs(params: ModelParameters, holdout: Sequence[Run], weights: Weights) -> Steps[np.ndarray]:
+    """The cost of each held-out run (whole runs) at ``params`` (a computation)."""
+    held = Objective(list(holdout), params, weights)
+    return held.costs_by_run((yield Evaluate(held, params.as_vector()[None]))[0])
 
 
 def balanced_weights(objective: Objective, x: np.ndarray) -> Weights:
@@ -680,7 +713,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     result = Diagnosis()
     progress(f"fitting the current model ({', '.join(start.free_names)}) on {len(fit_set)} runs")
     base_fits = fit_from_shapes(Objective(fit_set, start),
-                                lambda objective: fit_lsq(objective, max_iterations=config.fit_iterations),
+                                lambda objective: fit_lsq_steps(objective, max_iterations=config.fit_iterations),
                                 label="fitting the current model", progress=progress)
     base = base_fits.best
     result.base_starts = base_fits.starts
@@ -700,35 +733,43 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     remaining = list(library.names)
     profile_set = spread_over_gaits(fit_set, config.profile_runs)
     for round_ in range(config.max_effects):
-        # the baseline every candidate is measured against: the current model refitted alone as
-        # a candidate is (a fit that had not yet converged must not make every effect look useful)
-        progress(f"round {round_ + 1}: refitting without a new effect")
-        null, hold_null = _screen_refit(current, fit_set, holdout, config.screen_iterations, weights)
-        n = null.residual_count
-        hold_current = Objective(list(holdout), current, weights).run_costs(current.as_vector())
-        baseline = Baseline(2.0 * null.cost, hold_null).joined(Baseline(np.inf, hold_current))
-        candidates: list[Candidate] = []
-        for name in remaining:
+        progress(f"round {round_ + 1}: refitting without a new effect, and with each of "
+                 f"{', '.join(remaining)} (screened together)")
+
+        def candidate(name: str) -> Steps[Candidate]:
             effect = library[name]
-            progress(f"round {round_ + 1}: trying {name}")
             # the effect's parameter and the current free ones refit together: the current fit
             # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
-            trial = screening_start(effect, current, start, profile_set, library, weights)
+            trial = yield from screening_steps(effect, current, start, profile_set, library, weights)
             # from the fitted model no horizon continuation is needed: it already is in the basin
-            fit, hold1_runs = _screen_refit(trial, fit_set, holdout, config.screen_iterations, weights)
+            fit, hold1_runs = yield from _screen_refit(trial, fit_set, holdout, config.screen_iterations, weights)
             augmented = fit.params
             value = augmented.value(effect.parameter.name)
-            candidates.append(Candidate(name, value, effect.parameter.unit,
-                                        0.0, 0.0, 0.0, signature_match(effect, result.signature),
-                                        2.0 * fit.cost, float(hold1_runs.sum()), augmented, hold1_runs,
-                                        len(trial.free_names) - len(current.free_names),
-                                        implausible=effect.implausible(value)))
+            return Candidate(name, value, effect.parameter.unit, 0.0, 0.0, 0.0,
+                             signature_match(effect, result.signature), 2.0 * fit.cost, float(hold1_runs.sum()),
+                             augmented, hold1_runs, len(trial.free_names) - len(current.free_names),
+                             implausible=effect.implausible(value))
+
+        # the baseline every candidate is measured against: the current model as it is, and refitted
+        # alone as a candidate is (a fit that had not yet converged must not make every effect look
+        # useful). The candidates are independent: their evaluations share batches, with results
+        # bit-for-bit those of one after the other.
+        labels = ["the current model's held-out cost", "the refit without a new effect", *remaining]
+        hold_current, (null, hold_null), *candidates = run_together(
+            [_held_out_costs(current, holdout, weights),
+             _screen_refit(current, fit_set, holdout, config.screen_iterations, weights)]
+            + [candidate(name) for name in remaining],
+            finished=lambda i, round_=round_: progress(f"round {round_ + 1}: {labels[i]} done"))
+        n = null.residual_count
+        baseline = Baseline(2.0 * null.cost, hold_null).joined(Baseline(np.inf, hold_current))
 
         def refit_without(c: Candidate, round_: int = round_) -> tuple[Baseline, float]:
             progress(f"round {round_ + 1}: checking {c.name}: its model without it, refitted and as it is")
             effect = library[c.name]
-            alone, hold = _screen_refit(switched_off(c, effect), fit_set, holdout, config.screen_iterations, weights)
-            return Baseline(2.0 * alone.cost, hold), effect_share(c, effect, holdout, weights)
+            (alone, hold), share = run_together([
+                _screen_refit(switched_off(c, effect), fit_set, holdout, config.screen_iterations, weights),
+                effect_share_steps(c, effect, holdout, weights)])
+            return Baseline(2.0 * alone.cost, hold), share
 
         best, candidates, proxies = choose(candidates, baseline, n, config, refit_without)
         result.rounds.append(candidates)

@@ -35,8 +35,9 @@ same dev cases the screen's order put the basin that the whole fits found best f
 """
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Generator, Mapping, Sequence
 
 from cobra_model import design
 from cobra_model.errors import InputError
@@ -44,7 +45,8 @@ from cobra_model.parameters import CONTACT_LAWS, ModelParameters
 from cobra_model.run import Run
 from integrators.kernels import CONTACT_LAW_PARAMETERS, SOFT_LAWS
 from sysid.identification.executor import Executor, LocalExecutor
-from sysid.identification.lsq import DEFAULT_HORIZONS_S, FitResult, fit_lsq
+from sysid.identification.lockstep import Steps, run_together
+from sysid.identification.lsq import DEFAULT_HORIZONS_S, FitResult, fit_lsq, fit_lsq_steps
 from sysid.identification.objective import Objective, Weights
 
 #: Free parameters of each law's base fit: the actuator's damping and motor constant, and the
@@ -152,14 +154,27 @@ class StartFit:
 @dataclass(frozen=True)
 class ShapeFits:
     """The fit with the lowest training cost over the starts, every start's screen and whole-run
-    cost, and the seconds of all its fits."""
+    cost, and the wall time [s] of all its fits."""
 
     best: FitResult
     starts: tuple[StartFit, ...]
     seconds: float
 
 
-def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult] = fit_lsq,
+def fit_each(fit: Callable[[Objective], FitResult | Steps[FitResult]], objectives: Sequence[Objective]
+             ) -> list[FitResult]:
+    """``fit`` of each objective. Where ``fit`` returns a computation
+    (:func:`sysid.identification.lsq.fit_lsq_steps`) rather than a result, the fits run
+    together (:func:`sysid.identification.lockstep.run_together`: their evaluations share
+    batches, their results bit-for-bit those of one after the other)."""
+    out = [fit(o) for o in objectives]
+    steps = [k for k, r in enumerate(out) if isinstance(r, Generator)]
+    for k, result in zip(steps, run_together([out[k] for k in steps])):
+        out[k] = result
+    return out
+
+
+def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult | Steps[FitResult]] = fit_lsq_steps,
                     rounding_starts: Sequence[float] = ROUNDING_STARTS_M, label: str = "fitting",
                     progress: Callable[[str], None] | None = None,
                     whole_run_fits: int = WHOLE_RUN_FITS) -> ShapeFits:
@@ -169,34 +184,32 @@ def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult] 
 
     With more starts than ``whole_run_fits``, each is first fitted on the runs' first
     :data:`SCREEN_HORIZON_S` and only the ``whole_run_fits`` lowest of those go on, each from
-    where its screen ended (module docstring: why several starts, why the screen).
-    ``progress`` gets ``label`` and each start.
+    where its screen ended (module docstring: why several starts, why the screen). A ``fit``
+    that returns computations (the default) runs the screens together, then the whole-run
+    fits together (:func:`fit_each`). ``progress`` gets ``label`` and the starts.
     """
+    t0 = time.perf_counter()
     start = objective.params
     starts = fit_starts(start, rounding_starts)
     screen = len(starts) > whole_run_fits and objective.longest_run_s > SCREEN_HORIZON_S
-    seconds = 0.0
     screened: list[FitResult | None] = [None] * len(starts)
     if screen:
-        for k, values in enumerate(starts):
-            if progress is not None:
-                progress(f"{label}: screening the start {describe_start(values)} on the first "
-                         f"{SCREEN_HORIZON_S:g} s")
-            screened[k] = fit(objective.with_params(start.with_values(**values)).truncated(SCREEN_HORIZON_S))
-            seconds += screened[k].seconds
-        kept = sorted(range(len(starts)), key=lambda k: screened[k].cost)[:whole_run_fits]
+        if progress is not None:
+            progress(f"{label}: screening the starts {'; '.join(map(describe_start, starts))} on the first "
+                     f"{SCREEN_HORIZON_S:g} s")
+        screened = list(fit_each(fit, [objective.with_params(start.with_values(**values)).truncated(SCREEN_HORIZON_S)
+                                       for values in starts]))
+        kept = sorted(sorted(range(len(starts)), key=lambda k: screened[k].cost)[:whole_run_fits])
     else:
         kept = list(range(len(starts)))
-    whole: dict[int, FitResult] = {}
-    for k in sorted(kept):
-        if progress is not None:
-            progress(f"{label} from {describe_start(starts[k])}")
-        from_here = screened[k].params if screened[k] is not None else start.with_values(**starts[k])
-        whole[k] = fit(objective.with_params(from_here))
-        seconds += whole[k].seconds
+    if progress is not None:
+        progress(f"{label} from {'; '.join(describe_start(starts[k]) for k in kept)}")
+    whole = dict(zip(kept, fit_each(fit, [objective.with_params(screened[k].params if screened[k] is not None
+                                                                else start.with_values(**starts[k]))
+                                          for k in kept])))
     records = tuple(StartFit(values, screened[k].cost if screened[k] is not None else None,
                              whole[k].cost if k in whole else None) for k, values in enumerate(starts))
-    return ShapeFits(min(whole.values(), key=lambda r: r.cost), records, seconds)
+    return ShapeFits(min(whole.values(), key=lambda r: r.cost), records, time.perf_counter() - t0)
 
 
 @dataclass(frozen=True)
@@ -237,7 +250,7 @@ class ContactChoice:
 def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: ModelParameters | None = None, *,
                        laws: Sequence[str] = CONTACT_LAWS, weights: Weights | None = None,
                        rounding_starts: Sequence[float] = ROUNDING_STARTS_M,
-                       fit: Callable[[Objective], FitResult] = fit_lsq,
+                       fit: Callable[[Objective], FitResult | Steps[FitResult]] = fit_lsq_steps,
                        starts: Mapping[str, ModelParameters] | None = None, executor: Executor | None = None,
                        progress: Callable[[str], None] | None = None,
                        whole_run_fits: int = WHOLE_RUN_FITS) -> ContactChoice:
@@ -252,7 +265,8 @@ def choose_contact_law(train: Sequence[Run], held_out: Sequence[Run], start: Mod
         rounding_starts: the ``contact_rounding`` values [m] each law's fit starts from, a soft
             law's from a soft and a stiff ground each (:func:`fit_from_shapes`; the lowest
             training cost is kept).
-        fit: the fitting method (default least squares with its defaults).
+        fit: the fitting method (default least squares with its defaults, each start's fits
+            together: :func:`fit_from_shapes`).
         starts: per law, its starting parameters with their free set (overriding ``start`` and
             :data:`LAW_FREE` for that law; ``cobra fit --contact choose`` passes the free set
             the data check left each law).

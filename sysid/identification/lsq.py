@@ -57,6 +57,7 @@ import numpy as np
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
 from sysid.identification.intervals import Whiteness, sandwich_covariance, whiteness
+from sysid.identification.lockstep import Evaluate, Steps, run
 from sysid.identification.objective import Objective
 
 
@@ -275,7 +276,21 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
             cost_tol: float = 1e-3,
             stage_cost_tol: float = 1e-2, step_tol: float = 1e-5,
             progress: Callable[[int, float, float], None] | None = None) -> FitResult:
-    """Fit the objective's free parameters from its parameter set's current values.
+    """Fit the objective's free parameters from its parameter set's current values
+    (:func:`fit_lsq_steps`, its evaluations made one after the other)."""
+    return run(fit_lsq_steps(objective, max_iterations=max_iterations, budget_seconds=budget_seconds,
+                             horizons_s=horizons_s, fd_step=fd_step, trust_radius=trust_radius, cost_tol=cost_tol,
+                             stage_cost_tol=stage_cost_tol, step_tol=step_tol, progress=progress))
+
+
+def fit_lsq_steps(objective: Objective, *, max_iterations: int = 20, budget_seconds: float | None = None,
+                  horizons_s: Sequence[float] = DEFAULT_HORIZONS_S, fd_step: float = FD_STEP,
+                  trust_radius: float = TRUST_RADIUS, cost_tol: float = 1e-3, stage_cost_tol: float = 1e-2,
+                  step_tol: float = 1e-5, progress: Callable[[int, float, float], None] | None = None
+                  ) -> Steps[FitResult]:
+    """Fit the objective's free parameters from its parameter set's current values, as a
+    computation whose evaluations are requests (:mod:`sysid.identification.lockstep`: several
+    fits run together with :func:`~sysid.identification.lockstep.run_together`).
 
     The fit is a continuation over the horizon: it is first run on each run's first
     ``horizons_s[0]`` seconds, its result starts the fit on the first ``horizons_s[1]`` seconds,
@@ -325,7 +340,7 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
     longest = objective.longest_run_s
     params0 = objective.params
     z = params0.to_unit()
-    r0 = objective.residuals(params0.as_vector()[None])[0]
+    r0 = (yield Evaluate(objective, params0.as_vector()[None]))[0]
     log: list[IterationLog] = []
     path: list[tuple[float, int, np.ndarray]] = [(0.0, objective.evaluations, z.copy())]
     done = objective.evaluations
@@ -335,16 +350,17 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
         if h >= longest or (budget_seconds is not None and time.perf_counter() - t_start > budget_seconds):
             break
         stage = objective.truncated(h)
-        lm = _levenberg_marquardt(stage, z, max_iterations=max_iterations,
-                                  first_iteration=len({e.iteration for e in log}), evaluations_before=done,
-                                  **{**settings, "cost_tol": stage_cost_tol})
+        lm = yield from _levenberg_marquardt(stage, z, max_iterations=max_iterations,
+                                             first_iteration=len({e.iteration for e in log}),
+                                             evaluations_before=done, **{**settings, "cost_tol": stage_cost_tol})
         z, done = lm.z, done + stage.evaluations
         log.extend(lm.log)
         path.extend(lm.path)
     objective.evaluations = done
     # the whole runs always get at least one Jacobian: the intervals are computed from it
-    lm = _levenberg_marquardt(objective, z, max_iterations=max(max_iterations, 1),
-                              first_iteration=len({e.iteration for e in log}), evaluations_before=0, **settings)
+    lm = yield from _levenberg_marquardt(objective, z, max_iterations=max(max_iterations, 1),
+                                         first_iteration=len({e.iteration for e in log}), evaluations_before=0,
+                                         **settings)
     z = lm.z
     log.extend(lm.log)
     path.extend(lm.path)
@@ -357,8 +373,9 @@ def fit_lsq(objective: Objective, *, max_iterations: int = 20, budget_seconds: f
         # these values takes (simulate_like, an Objective built on them)
         done = objective.evaluations
         objective = stepped
-        lm = _levenberg_marquardt(objective, z, max_iterations=max(max_iterations, 1),
-                                  first_iteration=len({e.iteration for e in log}), evaluations_before=done, **settings)
+        lm = yield from _levenberg_marquardt(objective, z, max_iterations=max(max_iterations, 1),
+                                             first_iteration=len({e.iteration for e in log}),
+                                             evaluations_before=done, **settings)
         objective.evaluations += done
         z = lm.z
         log.extend(lm.log)
@@ -416,21 +433,21 @@ class _LMState:
 def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations: int, budget_seconds: float | None,
                          fd_step: float, trust_radius: float, cost_tol: float, step_tol: float,
                          progress: Callable[[int, float, float], None] | None, first_iteration: int,
-                         evaluations_before: int, t_start: float) -> _LMState:
-    """Box-constrained LM from unit coordinates ``z`` on one objective (see the module docstring)."""
+                         evaluations_before: int, t_start: float) -> Steps[_LMState]:
+    """Box-constrained LM from unit coordinates ``z`` on one objective (see the module docstring);
+    its evaluations are requests (:mod:`sysid.identification.lockstep`)."""
     params0 = objective.params
     d = len(params0.free_names)
     friction = _friction_row(params0)
     horizon = max(float(tg.duration) for tg in objective.spec.targets)
 
-    def residuals(Z: np.ndarray) -> np.ndarray:
-        X = np.array([params0.from_unit(zz).as_vector() for zz in np.atleast_2d(Z)])
-        return objective.residuals(X)
+    def residuals(Z: np.ndarray) -> Evaluate:
+        return Evaluate(objective, np.array([params0.from_unit(zz).as_vector() for zz in np.atleast_2d(Z)]))
 
     def over_budget() -> bool:
         return budget_seconds is not None and time.perf_counter() - t_start > budget_seconds
 
-    r = residuals(z)[0]
+    r = (yield residuals(z))[0]
     cost = 0.5 * float(r @ r)
     log: list[IterationLog] = []
     damping = 1e-3
@@ -446,7 +463,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
         it = first_iteration + k
         h = forward_steps(params0, z, fd_step)
         Zp = z[None, :] + np.diag(h)
-        Rp = residuals(Zp)
+        Rp = yield residuals(Zp)
         J = ((Rp - r[None, :]) / h[:, None]).T
         g = J.T @ r
         H = J.T @ J
@@ -470,7 +487,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
                 break
             z_try = np.clip(z + dz, 0.0, 1.0)
             try:
-                r_try = residuals(z_try)[0]
+                r_try = (yield residuals(z_try))[0]
                 c_try = 0.5 * float(r_try @ r_try)
             except (InputError, RuntimeError):
                 c_try = np.inf

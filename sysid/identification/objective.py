@@ -146,6 +146,16 @@ class ObjectiveSpec:
     threads: int = 2
 
 
+def shares_batch(a: ObjectiveSpec, b: ObjectiveSpec) -> bool:
+    """Whether two objectives' evaluations can step in one batched rollout without changing
+    either's results: the same robot file, physics and control steps, contact law, sample rate,
+    threads and recorded span (every environment's records are those it would have alone)."""
+    return (a.urdf == b.urdf and a.settings == b.settings and a.threads == b.threads
+            and a.params.contact_law == b.params.contact_law and a.weights.sample_hz == b.weights.sample_hz
+            and max(tg.duration for tg in a.targets) == max(tg.duration for tg in b.targets)
+            and max(len(tg.ticks) for tg in a.targets) == max(len(tg.ticks) for tg in b.targets))
+
+
 def simulate_batch(spec: ObjectiveSpec, X: np.ndarray, divergence: Divergence = "raise") -> list[Simulated]:
     """Simulate every run for each row of ``X`` (k, d) of free-parameter values (physical units).
 
@@ -153,48 +163,71 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray, divergence: Divergence = 
     (a row whose simulation of any run diverged comes back ``diverged``, the others as they are;
     :meth:`integrators.batch.BatchSimulator.rollout`).
     """
-    model = CobraModel.load(spec.urdf or DEFAULT_URDF)  # once per process and file (cached)
-    sets = [spec.params.update_from_vector(x) for x in np.atleast_2d(X)]
-    targets = spec.targets
-    n_runs = len(targets)
+    return simulate_together([(spec, X)], divergence)[0]
+
+
+def simulate_together(jobs: Sequence[tuple[ObjectiveSpec, np.ndarray]], divergence: Divergence = "raise"
+                      ) -> list[list[Simulated]]:
+    """:func:`simulate_batch` of several objectives' rows in one batched rollout (their specs
+    must pair up under :func:`shares_batch`); per job, its rows' simulations. Each environment
+    steps exactly as it would in a batch of its own.
+
+    Raises:
+        InputError: specs that cannot share a batch, or a row that is no valid parameter vector.
+    """
+    spec0 = jobs[0][0]
+    if not all(shares_batch(spec0, spec) for spec, _ in jobs[1:]):
+        raise InputError("simulate_together: these objectives cannot share a batch (robot, step, contact law, "
+                         "sample rate, threads or run length differ)")
+    model = CobraModel.load(spec0.urdf or DEFAULT_URDF)  # once per process and file (cached)
+    settings = spec0.settings
+    # per environment: its parameter set and run (a parameter set's environments are its runs)
+    sets = [[spec.params.update_from_vector(x) for x in np.atleast_2d(X)] for spec, X in jobs]
+    envs = [(p, tg) for (spec, _), ps in zip(jobs, sets) for p in ps for tg in spec.targets]
+    targets = list({id(tg): tg for _, tg in envs}.values())
+    index = {id(tg): r for r, tg in enumerate(targets)}
     n_ticks = max(len(tg.ticks) for tg in targets)
-    every = max(1, int(round(1.0 / (spec.weights.sample_hz * spec.settings.dt))))
+    every = max(1, int(round(1.0 / (spec0.weights.sample_hz * settings.dt))))
     # one extra record period so that every sample time lies inside the recorded span
-    duration = max(tg.duration for tg in targets) + every * spec.settings.dt
+    duration = max(tg.duration for tg in targets) + every * settings.dt
     # one goal sequence per (command delay, run): environments share a sequence, not a batch
-    delays = list(dict.fromkeys(effect_value(p, "actuator_delay") for p in sets))
+    delays = list(dict.fromkeys(effect_value(p, "actuator_delay") for p, _ in envs))
+    n_runs = len(targets)
     goals = np.empty((n_ticks, len(delays) * n_runs, targets[0].ticks.shape[1]))
     for d, delay in enumerate(delays):
         for r, tg in enumerate(targets):
-            ticks = delay_commands(tg.ticks, delay, spec.settings.control_dt)
+            ticks = delay_commands(tg.ticks, delay, settings.control_dt)
             goals[:, d * n_runs + r] = ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
-    goal_index = np.array([delays.index(effect_value(p, "actuator_delay")) * n_runs + r
-                           for p in sets for r in range(n_runs)])
-    batch = BatchSimulator(model, [p for p in sets for _ in targets], spec.settings, threads=spec.threads)
+    goal_index = np.array([delays.index(effect_value(p, "actuator_delay")) * n_runs + index[id(tg)]
+                           for p, tg in envs])
+    batch = BatchSimulator(model, [p for p, _ in envs], settings, threads=spec0.threads)
     # a run's rest state depends only on its encoder offsets and the ends' rounding: made once each
     rest: dict[tuple, SimState] = {}
     states = []
-    for e, sim in enumerate(batch.sims):
-        r = e % n_runs
-        reading = sim.joints_reading(targets[r].start.q_reading)
-        key = (r, reading.tobytes(), float(sim.ground[K.G_ROUND]))
+    for sim, (_, tg) in zip(batch.sims, envs):
+        reading = sim.joints_reading(tg.start.q_reading)
+        key = (index[id(tg)], reading.tobytes(), float(sim.ground[K.G_ROUND]))
         if key not in rest:
-            pose = targets[r].start.pose(model, reading)
+            pose = tg.start.pose(model, reading)
             rest[key] = sim.rest_state(pose.q_joints, head_xy=pose.head_xy, base_quat_wxyz=pose.head_quat_wxyz)
         states.append(rest[key])
     _, _, q_rec, m_rec, c_rec = batch.rollout(states, goals, duration, record_every=every, goal_index=goal_index,
                                               divergence=divergence)
     dead = np.isnan(q_rec[0]).any(axis=1)  # masked: the initial record of a diverged environment is NaN too
-    t_rec = np.arange(q_rec.shape[0]) * every * spec.settings.dt
-    out = []
-    for k in range(len(sets)):
-        heads, joints, currents = [], [], []
-        for r, tg in enumerate(targets):
-            e = k * n_runs + r
-            heads.append(interpolate_rows(tg.t_samples, t_rec, q_rec[:, e, :2]))
-            joints.append(interpolate_rows(tg.t_samples, t_rec, m_rec[:, e]))
-            currents.append(interpolate_rows(tg.t_samples, t_rec, c_rec[:, e]))
-        out.append(Simulated(heads, joints, currents, diverged=bool(dead[k * n_runs:(k + 1) * n_runs].any())))
+    t_rec = np.arange(q_rec.shape[0]) * every * settings.dt
+    out, e = [], 0
+    for (spec, _), ps in zip(jobs, sets):
+        sims = []
+        for _ in ps:
+            heads, joints, currents = [], [], []
+            for tg in spec.targets:
+                heads.append(interpolate_rows(tg.t_samples, t_rec, q_rec[:, e, :2]))
+                joints.append(interpolate_rows(tg.t_samples, t_rec, m_rec[:, e]))
+                currents.append(interpolate_rows(tg.t_samples, t_rec, c_rec[:, e]))
+                e += 1
+            sims.append(Simulated(heads, joints, currents,
+                                  diverged=bool(dead[e - len(spec.targets):e].any())))
+        out.append(sims)
     return out
 
 
@@ -498,7 +531,10 @@ class Objective:
 
     def run_costs(self, x: np.ndarray) -> np.ndarray:
         """Sum of squared residuals of each run (in the order of ``runs``) for one parameter vector."""
-        r = self.residuals(np.atleast_2d(x))[0]
+        return self.costs_by_run(self.residuals(np.atleast_2d(x))[0])
+
+    def costs_by_run(self, r: np.ndarray) -> np.ndarray:
+        """Sum of squares of each run's part of one residual vector ``r`` (in the order of ``runs``)."""
         sizes = [tg.residual_size(self.weights) for tg in self.spec.targets]
         return np.array([float(part @ part) for part in np.split(r, np.cumsum(sizes)[:-1])])
 

@@ -1,0 +1,122 @@
+"""Independent computations stepped together (sysid.identification.lockstep): their batches
+shared, their results bit-for-bit those of running them one after the other."""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from cobra_model import CobraModel, ModelParameters
+from cobra_model.errors import InputError
+from integrators.simulator import Simulator
+from sysid.discrepancy.diagnose import _cost_steps, _screen_refit, screening_steps
+from sysid.discrepancy.effects import EffectLibrary
+from sysid.generators.dataset import RunPlan, record
+from sysid.identification.lockstep import Evaluate, run, run_together
+from sysid.identification.objective import Objective, Weights, simulate_together
+
+LIBRARY = EffectLibrary()
+FREE = ["mu_c", "joint_damping", "motor_km"]
+NOMINAL = ModelParameters.nominal().with_frozen(free=FREE)
+TRUTH = LIBRARY.transform(NOMINAL.with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098),
+                          {"backlash": 0.02}, frozen=True)
+
+
+@pytest.fixture(scope="module")
+def runs() -> tuple[list, list]:
+    """Two 2 s training runs and a 2 s held-out run made with a backlash the nominal model lacks."""
+    model = CobraModel.load()
+    sim = Simulator(model, TRUTH)
+    rng = np.random.default_rng(5)
+    plans = [RunPlan("a", 0.5, 2.0, (0.0, 0.0), 0.3, "train"), RunPlan("b", 0.65, 2.0, (0.4, -0.2), 2.0, "train"),
+             RunPlan("c", 0.35, 2.0, (0.1, 0.3), 1.0, "validation")]
+    made = [record(sim, p, rng, model) for p in plans]
+    return made[:2], made[2:]
+
+
+def computations(train: list, held: list) -> list:
+    """Different free sets, contact parameters and run sets: screening starts (one needs the torque
+    demand), refits from effect-augmented starts and a grid of costs."""
+    backlash = LIBRARY.transform(NOMINAL, {"backlash": 0.01})
+    delay = LIBRARY.transform(NOMINAL, {"actuator_delay": 0.02})
+    grid = np.array([NOMINAL.with_values(mu_c=v).as_vector() for v in (0.15, 0.2, 0.3)])
+    return [screening_steps(LIBRARY["torque_saturation"], NOMINAL, NOMINAL, train, LIBRARY),
+            screening_steps(LIBRARY["backlash"], NOMINAL, NOMINAL, train, LIBRARY),
+            _screen_refit(backlash, train, held, 2, Weights()),
+            _screen_refit(delay, train, held, 2, Weights()),
+            _cost_steps(Objective(held, NOMINAL), grid)]
+
+
+def same(a, b) -> bool:
+    """Bit-for-bit equality of the computations' results (parameter sets, fits, cost arrays)."""
+    if isinstance(a, tuple):
+        return all(same(x, y) for x, y in zip(a, b))
+    if isinstance(a, ModelParameters):
+        return a.free_names == b.free_names and np.array_equal(a.as_vector(), b.as_vector())
+    if isinstance(a, np.ndarray):
+        return np.array_equal(a, b)
+    return (same(a.params, b.params) and a.cost == b.cost and a.evaluations == b.evaluations
+            and [dataclasses.astuple(e)[:7] for e in a.log] == [dataclasses.astuple(e)[:7] for e in b.log])
+
+
+@pytest.mark.slow
+def test_computations_stepped_together_give_exactly_their_results_alone(runs):
+    """Fits, screening starts and cost grids of different effects and free sets, run in
+    lock-step, return bit-for-bit what each returns run on its own (each environment steps as
+    it would in a batch of its own), with the same evaluation counts."""
+    train, held = runs
+    alone = [run(c) for c in computations(train, held)]
+    order = []
+    together = run_together(computations(train, held), finished=order.append)
+    assert sorted(order) == list(range(len(alone)))
+    for a, b in zip(alone, together):
+        assert same(a, b)
+    # the screening found the hidden backlash, the refit from it moved: the comparison is not vacuous
+    assert alone[1].value("backlash") > 0.0
+    assert alone[2][0].params.value("backlash") != 0.01
+
+
+def test_a_diverging_request_gets_its_own_error_and_the_others_their_residuals(runs):
+    """In a shared batch, a request whose row diverges gets the error it would get alone (naming
+    what blew up); a request with an invalid row gets its InputError; the others their residuals,
+    exactly as alone."""
+    train, _ = runs
+    short = [r.slice_time(float(r.t[0]), float(r.t[0]) + 1.0) for r in train]
+    every = ModelParameters.nominal().with_frozen(free=list(ModelParameters.nominal().names))
+    objective = Objective(short, every)
+    wild = every.from_unit(np.array([1.0 if name in ("joint_damping", "motor_km", "k2", "mu_c", "mu_s",
+                                                      "friction_cone", "contact_rounding") else 0.0
+                                     for name in every.free_names])).as_vector()
+    healthy = Objective(short, NOMINAL)
+    x = NOMINAL.as_vector()[None]
+
+    def ask(request: Evaluate):
+        try:
+            return (yield request)
+        except (RuntimeError, InputError) as exc:
+            return exc
+
+    got = run_together([ask(Evaluate(objective, wild[None])), ask(Evaluate(healthy, x)),
+                        ask(Evaluate(healthy, np.array([[1.0, 2.0]]))), ask(Evaluate(objective, wild[None], "mask"))])
+    assert isinstance(got[0], RuntimeError) and "diverged" in str(got[0]) and "environment" in str(got[0])
+    assert np.array_equal(got[1], healthy.residuals(x))
+    assert isinstance(got[2], InputError) and "expected 3" in str(got[2])
+    assert np.isnan(got[3]).all()
+
+
+def test_objectives_that_cannot_share_a_batch_are_refused(runs):
+    """Another sample rate records at another period: simulate_together refuses the pair and
+    says what must match; run_together evaluates them in separate batches."""
+    train, _ = runs
+    a = Objective(train, NOMINAL)
+    b = Objective(train, NOMINAL, Weights(sample_hz=20.0))
+    x = NOMINAL.as_vector()[None]
+    with pytest.raises(InputError, match="sample rate"):
+        simulate_together([(a.spec, x), (b.spec, x)])
+
+    def ask(objective: Objective):
+        return (yield Evaluate(objective, x))
+
+    ra, rb = run_together([ask(a), ask(b)])
+    assert np.array_equal(ra, a.residuals(x)) and np.array_equal(rb, b.residuals(x))
