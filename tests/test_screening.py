@@ -7,8 +7,9 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.generators.dataset import RunPlan, record
-from sysid.discrepancy.diagnose import _costs, screening_start, torque_demand, unbent
+from sysid.discrepancy.diagnose import _cost_steps, screening_start, torque_demand, unbent
 from sysid.discrepancy.effects import EffectLibrary
+from sysid.identification.lockstep import run
 from sysid.identification.lsq import fit_lsq
 from sysid.identification.objective import Objective
 
@@ -93,7 +94,7 @@ def test_a_diverging_row_costs_infinity_and_leaves_the_others_as_evaluated_alone
     with pytest.raises(RuntimeError, match="diverged"):
         objective.residuals(wild[None])
     healthy = [every.as_vector(), every.with_values(mu_c=0.2).as_vector()]
-    costs = _costs(objective, np.array([healthy[0], wild, healthy[1]]))
+    costs = run(_cost_steps(objective, np.array([healthy[0], wild, healthy[1]])))
     alone = [float(r @ r) for r in (objective.residuals(x[None])[0] for x in healthy)]
     assert costs[1] == np.inf
     assert costs[0] == alone[0] and costs[2] == alone[1] and alone[0] != alone[1]

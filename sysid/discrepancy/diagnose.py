@@ -374,14 +374,10 @@ def start_grid(effect: Effect, demand_nm: float | None = None, coarse: bool = Fa
     return out
 
 
-def _costs(objective: Objective, X: np.ndarray) -> np.ndarray:
-    """Sums of squared residuals of the rows of ``X`` (one batched evaluation; a row whose
-    simulation diverges, or that is not a valid parameter vector, costs infinity)."""
-    return run(_cost_steps(objective, X))
-
-
 def _cost_steps(objective: Objective, X: np.ndarray) -> Steps[np.ndarray]:
-    """:func:`_costs` as a computation (:mod:`sysid.identification.lockstep`)."""
+    """Sums of squared residuals of the rows of ``X`` (one batched evaluation; a row whose
+    simulation diverges, or that is not a valid parameter vector, costs infinity); a
+    computation (:mod:`sysid.identification.lockstep`)."""
     try:
         R = yield Evaluate(objective, X, "mask")
     except InputError:  # a row is no valid parameter set: the others one by one

@@ -36,8 +36,9 @@ same dev cases the screen's order put the basin that the whole fits found best f
 from __future__ import annotations
 
 import time
+from collections.abc import Generator
 from dataclasses import dataclass
-from typing import Callable, Generator, Mapping, Sequence
+from typing import Callable, Mapping, Sequence
 
 from cobra_model import design
 from cobra_model.errors import InputError
@@ -46,7 +47,7 @@ from cobra_model.run import Run
 from integrators.kernels import CONTACT_LAW_PARAMETERS, SOFT_LAWS
 from sysid.identification.executor import Executor, LocalExecutor
 from sysid.identification.lockstep import Steps, run_together
-from sysid.identification.lsq import DEFAULT_HORIZONS_S, FitResult, fit_lsq, fit_lsq_steps
+from sysid.identification.lsq import DEFAULT_HORIZONS_S, FitResult, fit_lsq_steps
 from sysid.identification.objective import Objective, Weights
 
 #: Free parameters of each law's base fit: the actuator's damping and motor constant, and the

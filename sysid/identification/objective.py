@@ -190,16 +190,15 @@ def simulate_together(jobs: Sequence[tuple[ObjectiveSpec, np.ndarray]], divergen
     every = max(1, int(round(1.0 / (spec0.weights.sample_hz * settings.dt))))
     # one extra record period so that every sample time lies inside the recorded span
     duration = max(tg.duration for tg in targets) + every * settings.dt
-    # one goal sequence per (command delay, run): environments share a sequence, not a batch
-    delays = list(dict.fromkeys(effect_value(p, "actuator_delay") for p, _ in envs))
-    n_runs = len(targets)
-    goals = np.empty((n_ticks, len(delays) * n_runs, targets[0].ticks.shape[1]))
-    for d, delay in enumerate(delays):
-        for r, tg in enumerate(targets):
-            ticks = delay_commands(tg.ticks, delay, settings.control_dt)
-            goals[:, d * n_runs + r] = ticks[np.minimum(np.arange(n_ticks), len(tg.ticks) - 1)]
-    goal_index = np.array([delays.index(effect_value(p, "actuator_delay")) * n_runs + index[id(tg)]
-                           for p, tg in envs])
+    # one goal sequence per (command delay, run) that an environment follows: environments share
+    # a sequence, not a batch
+    keys = [(effect_value(p, "actuator_delay"), index[id(tg)]) for p, tg in envs]
+    sequences = {key: g for g, key in enumerate(dict.fromkeys(keys))}
+    goals = np.empty((n_ticks, len(sequences), targets[0].ticks.shape[1]))
+    for (delay, r), g in sequences.items():
+        ticks = delay_commands(targets[r].ticks, delay, settings.control_dt)
+        goals[:, g] = ticks[np.minimum(np.arange(n_ticks), len(targets[r].ticks) - 1)]
+    goal_index = np.array([sequences[key] for key in keys])
     batch = BatchSimulator(model, [p for p, _ in envs], settings, threads=spec0.threads)
     # a run's rest state depends only on its encoder offsets and the ends' rounding: made once each
     rest: dict[tuple, SimState] = {}
