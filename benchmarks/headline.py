@@ -73,7 +73,7 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
         contact = doc["meta"].get("mujoco_contact", "twin")  # files written before it was asked: the twin's
         where = ("on this simulator's runs" if s["engine"] == "sim" else
                  "on MuJoCo's runs" + (f" with its {contact} contact" if contact != "twin" else ""))
-        if s["engine"] == "mujoco" and law != "compliant":
+        if s["engine"] == "mujoco":
             # a file written before the elliptic law existed chose between the first two laws
             among = doc["meta"].get("mujoco_contact_laws", ["compliant", "soft_constraint"])
             where += (f", each diagnosis choosing its contact law among {', '.join(among)}" if law == "choose"
