@@ -198,8 +198,8 @@ def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult |
         if progress is not None:
             progress(f"{label}: screening the starts {'; '.join(map(describe_start, starts))} on the first "
                      f"{SCREEN_HORIZON_S:g} s")
-        screened = list(fit_each(fit, [objective.with_params(start.with_values(**values)).truncated(SCREEN_HORIZON_S)
-                                       for values in starts]))
+        screened = fit_each(fit, [objective.with_params(start.with_values(**values)).truncated(SCREEN_HORIZON_S)
+                                  for values in starts])
         kept = sorted(sorted(range(len(starts)), key=lambda k: screened[k].cost)[:whole_run_fits])
     else:
         kept = list(range(len(starts)))

@@ -98,9 +98,9 @@ def _evaluate_together(requests: Sequence[Evaluate]) -> list[np.ndarray | Except
     Objectives spread over several workers are evaluated on their own; a request with a row
     that is no valid parameter vector gets its error, and a batch that fails to start (a
     parameter set no simulator takes) is evaluated request by request, each getting its own
-    result or error. A batch steps with divergence masked;
-    a request that wanted ``"raise"`` and has a diverged row is evaluated again on its own, so
-    that it gets the error (naming what blew up) it would have got alone.
+    result or error. A batch steps with divergence masked; a request that wanted ``"raise"``
+    and has a diverged row is evaluated again on its own, so that it gets the error (naming
+    what blew up) it would have got alone.
     """
     out: list[np.ndarray | Exception | None] = [None] * len(requests)
     groups: list[list[int]] = []
