@@ -10,7 +10,7 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.errors import InputError
 from integrators.simulator import Simulator
-from sysid.discrepancy.diagnose import _cost_steps, _screen_refit, screening_steps
+from sysid.discrepancy.diagnose import _cost_steps, _screen_refit, screening_start
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.dataset import RunPlan, record
 from sysid.identification.lockstep import Evaluate, run, run_together
@@ -41,8 +41,8 @@ def computations(train: list, held: list) -> list:
     backlash = LIBRARY.transform(NOMINAL, {"backlash": 0.01})
     delay = LIBRARY.transform(NOMINAL, {"actuator_delay": 0.02})
     grid = np.array([NOMINAL.with_values(mu_c=v).as_vector() for v in (0.15, 0.2, 0.3)])
-    return [screening_steps(LIBRARY["torque_saturation"], NOMINAL, NOMINAL, train, LIBRARY),
-            screening_steps(LIBRARY["backlash"], NOMINAL, NOMINAL, train, LIBRARY),
+    return [screening_start(LIBRARY["torque_saturation"], NOMINAL, NOMINAL, train, LIBRARY),
+            screening_start(LIBRARY["backlash"], NOMINAL, NOMINAL, train, LIBRARY),
             _screen_refit(backlash, train, held, 2, Weights()),
             _screen_refit(delay, train, held, 2, Weights()),
             _cost_steps(Objective(held, NOMINAL), grid)]

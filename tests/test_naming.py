@@ -10,6 +10,7 @@ from cobra_model import CobraModel, ModelParameters
 from cobra_model.errors import InputError
 from integrators.simulator import Simulator
 from sysid.discrepancy.diagnose import Baseline, Candidate, DiagnoseConfig, choose, diagnose, effect_share
+from sysid.identification.lockstep import run
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.dataset import RunPlan, record
 from sysid.identification.objective import Weights
@@ -181,7 +182,7 @@ def test_the_share_an_effect_carries_is_nil_at_its_inactive_value_and_large_wher
     holdout = measured_runs(LIBRARY.transform(truth, {effect: value}, frozen=True) if in_data else truth)
     fitted = LIBRARY[effect].parameter.value if value is None else value
     c = replace(candidate(effect, 0.0, [0.0]), params=LIBRARY.transform(truth, {effect: fitted}))
-    share = effect_share(c, LIBRARY[effect], holdout, Weights())
+    share = run(effect_share(c, LIBRARY[effect], holdout, Weights()))
     if value is None:
         assert share == 0.0
     elif not in_data:

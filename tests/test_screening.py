@@ -40,7 +40,7 @@ def test_a_limit_the_fit_bent_the_motor_to_mimic_starts_from_the_unbent_motor():
     runs = measured(LIBRARY.transform(TRUTH, {"torque_saturation": 2.5}, frozen=True))
     bent = fit_lsq(Objective(runs, NOMINAL), max_iterations=6).params
     assert bent.value("motor_km") < 0.9 * TRUTH.value("motor_km")     # the compensation this guards against
-    start = screening_start(LIBRARY["torque_saturation"], bent, NOMINAL, runs, LIBRARY)
+    start = run(screening_start(LIBRARY["torque_saturation"], bent, NOMINAL, runs, LIBRARY))
     assert start.value("torque_limit") < 4.0
     assert set(start.free_names) == {*FREE, "torque_limit"}
     assert cost(runs, start) < 0.8 * cost(runs, bent)
@@ -51,7 +51,7 @@ def test_an_effect_absent_from_the_data_starts_inactive():
     """No backlash in the data and the current model exact: every grid value costs more than
     none, so the refit starts with the effect inactive."""
     runs = measured(TRUTH)
-    start = screening_start(LIBRARY["backlash"], TRUTH, NOMINAL, runs, LIBRARY)
+    start = run(screening_start(LIBRARY["backlash"], TRUTH, NOMINAL, runs, LIBRARY))
     assert start.value("backlash") == LIBRARY["backlash"].parameter.value
 
 

@@ -62,7 +62,7 @@ from integrators.simulate import rollout_like, simulate_like
 from integrators.simulator import Simulator
 from sysid.discrepancy.effects import Effect, EffectLibrary
 from sysid.identification.contact_choice import StartFit, fit_from_shapes
-from sysid.identification.lockstep import Evaluate, Steps, run, run_together
+from sysid.identification.lockstep import Evaluate, Steps, run_together
 from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq, fit_lsq_steps, forward_steps
 from sysid.identification.objective import Objective, Weights
 from sysid.identification.splits import spread_over_gaits
@@ -455,13 +455,6 @@ def unbent(effect: Effect, current: ModelParameters, before: ModelParameters) ->
 
 
 def screening_start(effect: Effect, current: ModelParameters, before: ModelParameters, runs: Sequence[Run],
-                    library: EffectLibrary, weights: Weights = Weights()) -> ModelParameters:
-    """Where a candidate's screening refit starts (:func:`screening_steps`, its evaluations made
-    one after the other)."""
-    return run(screening_steps(effect, current, before, runs, library, weights))
-
-
-def screening_steps(effect: Effect, current: ModelParameters, before: ModelParameters, runs: Sequence[Run],
                     library: EffectLibrary, weights: Weights = Weights()) -> Steps[ModelParameters]:
     """Where a candidate's screening refit starts: the effect added to one of two bases (a
     computation, :mod:`sysid.identification.lockstep`).
@@ -577,13 +570,7 @@ def switched_off(c: Candidate, effect: Effect) -> ModelParameters:
     return c.params.with_values(**{p.name: p.value}).with_frozen([p.name])
 
 
-def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: Weights) -> float:
-    """The share of candidate ``c``'s held-out cost that its effect carries itself
-    (:func:`effect_share_steps`, evaluated on its own)."""
-    return run(effect_share_steps(c, effect, holdout, weights))
-
-
-def effect_share_steps(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: Weights) -> Steps[float]:
+def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: Weights) -> Steps[float]:
     """The share of candidate ``c``'s held-out cost that its effect carries itself:
     ``1 - cost(c) / cost(c switched off)``, the other parameters left as the candidate's refit
     found them (no refit), the least of it over the parameters as they are
@@ -736,7 +723,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             effect = library[name]
             # the effect's parameter and the current free ones refit together: the current fit
             # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
-            trial = yield from screening_steps(effect, current, start, profile_set, library, weights)
+            trial = yield from screening_start(effect, current, start, profile_set, library, weights)
             # from the fitted model no horizon continuation is needed: it already is in the basin
             fit, hold1_runs = yield from _screen_refit(trial, fit_set, holdout, config.screen_iterations, weights)
             augmented = fit.params
@@ -764,7 +751,7 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
             effect = library[c.name]
             (alone, hold), share = run_together([
                 _screen_refit(switched_off(c, effect), fit_set, holdout, config.screen_iterations, weights),
-                effect_share_steps(c, effect, holdout, weights)])
+                effect_share(c, effect, holdout, weights)])
             return Baseline(2.0 * alone.cost, hold), share
 
         best, candidates, proxies = choose(candidates, baseline, n, config, refit_without)

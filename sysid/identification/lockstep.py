@@ -128,10 +128,9 @@ def _evaluate_together(requests: Sequence[Evaluate]) -> list[np.ndarray | Except
                 out[i] = _alone(requests[i])
             continue
         for i, (spec, X), done in zip(group, jobs, sims):
-            requests[i].objective.evaluations += len(X)
             if requests[i].divergence == "raise" and any(s.diverged for s in done):
-                requests[i].objective.evaluations -= len(X)  # counted again by the evaluation alone
-                out[i] = _alone(requests[i])
+                out[i] = _alone(requests[i])  # which counts its evaluations
             else:
+                requests[i].objective.evaluations += len(X)
                 out[i] = np.array([residual_vector(spec, s) for s in done])
     return out

@@ -528,10 +528,6 @@ class Objective:
         """
         return np.array(self._map(X, True, divergence))
 
-    def run_costs(self, x: np.ndarray) -> np.ndarray:
-        """Sum of squared residuals of each run (in the order of ``runs``) for one parameter vector."""
-        return self.costs_by_run(self.residuals(np.atleast_2d(x))[0])
-
     def costs_by_run(self, r: np.ndarray) -> np.ndarray:
         """Sum of squares of each run's part of one residual vector ``r`` (in the order of ``runs``)."""
         sizes = [tg.residual_size(self.weights) for tg in self.spec.targets]
