@@ -42,10 +42,14 @@ rigid) or ``elliptic_soft`` (elliptic cone, 40 ms) are contacts of another struc
 diagnosis's claims on more than one (another configuration writes
 ``diagnose_matrix_<law>_<configuration>.*``).
 
+Motor currents (``--current``): every run also logs each servo's current as a Dynamixel's
+Present Current (20 mA of noise, 2.69 mA resolution; the same runs otherwise), and the diagnosis
+fits it as a third channel (``DiagnoseConfig.use_current``); results ``..._current.*``.
+
 Usage: ``python benchmarks/diagnose_matrix.py [--engines sim,mujoco] [--effects ...]
 [--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--no-pairs]
 [--mujoco-contact-law compliant|soft_constraint|choose] [--mujoco-contact twin|stiff|...]
-[--executor local|ray] [--resume]``.
+[--current] [--executor local|ray] [--resume]``.
 """
 from __future__ import annotations
 
@@ -111,6 +115,7 @@ class Job:
     duration_s: float
     contact_law: str = "compliant"  # the model's contact law in the diagnosis (its start and free set), or "choose"
     mujoco_contact: str | None = "twin"  # MuJoCo's contact configuration (MUJOCO_CONTACTS); None for this simulator's
+    current: bool = False  # the runs log the motor currents, which the diagnosis then fits
 
     @property
     def hidden(self) -> dict[str, float]:
@@ -132,10 +137,10 @@ def make_runs(job: Job, model: CobraModel) -> list:
                      "train") for i, f in enumerate((0.5, 0.65, 0.5))]
     if job.engine == "sim":
         sim = Simulator(model, library.transform(truth, job.hidden, frozen=True))
-        return [record(sim, p, rng, model) for p in plans]
+        return [record(sim, p, rng, model, log_current=job.current) for p in plans]
     options = dataclasses.replace(MUJOCO_CONTACTS[job.mujoco_contact],
                                   **{MUJOCO_OPTIONS[n]: v for n, v in job.hidden.items()})
-    return [record_mujoco(p, options, rng, model, truth) for p in plans]
+    return [record_mujoco(p, options, rng, model, truth, log_current=job.current) for p in plans]
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -158,7 +163,7 @@ def run_job(job: Job) -> dict[str, Any]:
     before, after = d.gap_before, d.gap_after
     return {"engine": job.engine, "effect": job.effect, "level": job.level, "magnitude": job.magnitude,
             "seed": job.seed, "contact_law": job.contact_law, "law_fitted": d.params_before.contact_law,
-            "mujoco_contact": job.mujoco_contact,
+            "mujoco_contact": job.mujoco_contact, "current": job.current,
             "named": named[0] if named else None, "named_all": named,
             # each named effect's fitted value (parameter units): an effect named at its inactive value is no effect
             "named_values": {e.name: e.value for e in d.effects},
@@ -174,15 +179,17 @@ def run_job(job: Job) -> dict[str, Any]:
 
 def job_key(row_or_job: Any) -> tuple:
     """What identifies a job (and the row it made): engine, effect, level, magnitude, seed, the
-    model's contact law and MuJoCo's contact configuration (rows written before these were
-    recorded: compliant, twin)."""
+    model's contact law, MuJoCo's contact configuration and whether the runs log motor currents
+    (rows written before these were recorded: compliant, twin, no currents)."""
     if isinstance(row_or_job, dict):
         get = row_or_job.get
         law, contact = row_or_job.get("contact_law", "compliant"), row_or_job.get("mujoco_contact") or "twin"
+        current = row_or_job.get("current", False)
     else:
         get, law, contact = (lambda k: getattr(row_or_job, k)), row_or_job.contact_law, row_or_job.mujoco_contact
+        current = row_or_job.current
     return (get("engine"), get("effect"), get("level"), get("magnitude"), get("seed"), law,
-            contact if get("engine") == "mujoco" else None)
+            contact if get("engine") == "mujoco" else None, current)
 
 
 def finished_rows(path: Path, duration_s: float) -> dict[tuple, dict[str, Any]]:
@@ -208,19 +215,20 @@ def finished_rows(path: Path, duration_s: float) -> dict[tuple, dict[str, Any]]:
 
 def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: list[int], nulls: int,
              duration_s: float, pairs: bool = False, mujoco_law: str = "compliant",
-             mujoco_contact: str = "twin") -> list[Job]:
+             mujoco_contact: str = "twin", current: bool = False) -> list[Job]:
     """Every (engine, effect, magnitude, seed) job, then ``nulls`` nulls per engine (seeds cycled),
     then with ``pairs`` every pair of the engine's effects hidden together at their realistic
     magnitudes, one dataset each (seeds cycled). MuJoCo's runs are made with its
     ``mujoco_contact`` configuration and diagnosed with the model's ``mujoco_law``; this
-    simulator's with the law that made them (compliant)."""
+    simulator's with the law that made them (compliant). With ``current`` every run logs the
+    motor currents (and the diagnosis fits them)."""
     library = EffectLibrary()
     out = []
     for engine in engines:
         mine = [e for e in effects if engine == "sim" or e in MUJOCO_OPTIONS]
         law = mujoco_law if engine == "mujoco" else "compliant"
         job = functools.partial(Job, duration_s=duration_s, contact_law=law,
-                                mujoco_contact=mujoco_contact if engine == "mujoco" else None)
+                                mujoco_contact=mujoco_contact if engine == "mujoco" else None, current=current)
         for effect in mine:
             for level in levels:
                 magnitude = library[effect].realistic if level == "realistic" else NEAR_LIMIT[effect]
@@ -267,12 +275,14 @@ def heatmap(rows: list[dict[str, Any]], engine: str, out: Path) -> Path:
 
 
 def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], mujoco_law: str = "compliant",
-             mujoco_contact: str = "twin") -> str:
+             mujoco_contact: str = "twin", current: bool = False) -> str:
     lines = [f"Seeds {', '.join(map(str, seeds))} (developed on {', '.join(map(str, DEV_SEEDS))}); two 0.5/0.65 Hz "
              f"training runs and one 0.5 Hz held-out run per job; MuJoCo's runs made with its {mujoco_contact} "
              f"contact configuration ({describe(MUJOCO_CONTACTS[mujoco_contact])}) and diagnosed "
              + ("under the contact law each diagnosis chose (in brackets)" if mujoco_law == "choose"
-                else f"with the {mujoco_law} contact law") + ".", "",
+                else f"with the {mujoco_law} contact law") + "."
+             + (" Every run logs the motor currents (Present Current: 20 mA noise, 2.69 mA resolution), which "
+                "the diagnosis fits as a third channel." if current else ""), "",
              "| engine | diagnoses | named first (right) | false positives on nulls | median held-out cost "
              "reduction when right | median held-out head gap shrink when right | median wall per diagnosis [s] | "
              "pairs: both named | median wall per pair [s] |",
@@ -317,6 +327,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--mujoco-contact", choices=tuple(MUJOCO_CONTACTS), default="twin",
                         help="MuJoCo's contact configuration for its runs (default twin; another writes "
                              "diagnose_matrix_<law>_<configuration>.*)")
+    parser.add_argument("--current", action="store_true",
+                        help="every run logs the motor currents (Present Current's noise and resolution) and the "
+                             "diagnosis fits them (results diagnose_matrix[...]_current.*)")
     parser.add_argument("--no-pairs", dest="pairs", action="store_false",
                         help="leave out the jobs that hide two effects together (every pair of the engine's "
                              "effects at their realistic magnitudes, one seed each)")
@@ -341,8 +354,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     law = args.mujoco_contact_law
     contact = args.mujoco_contact
-    name = "_".join(["diagnose_matrix"] + ([law] if law != "compliant" else []) + ([contact] if contact != "twin" else []))
-    jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration, args.pairs, law, contact)
+    name = "_".join(["diagnose_matrix"] + ([law] if law != "compliant" else []) + ([contact] if contact != "twin" else [])
+                    + (["current"] if args.current else []))
+    jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration, args.pairs, law, contact, args.current)
     done = finished_rows(RESULTS_DIR / f"{name}.json", args.duration) if args.resume else {}
     done = {k: r for k, r in done.items() if k in {job_key(j) for j in jobs}}
     todo = [j for j in jobs if job_key(j) not in done]
@@ -362,14 +376,14 @@ def main(argv: list[str] | None = None) -> int:
         meta = {"engines": engines, "effects": effects, "magnitudes": levels, "seeds": seeds,
                 "dev_seeds": list(DEV_SEEDS), "nulls": args.nulls, "pairs": args.pairs, "duration_s": args.duration,
                 "mujoco_contact_law": law, "mujoco_contact_laws": list(CONTACT_LAWS) if law == "choose" else [law],
-                "mujoco_contact": contact,
+                "mujoco_contact": contact, "motor_currents": args.current,
                 "executor": args.executor,
                 "summary": [summary(rows, e) for e in engines]}
-        write_results(name, rows, meta, markdown(rows, engines, seeds, law, contact))
+        write_results(name, rows, meta, markdown(rows, engines, seeds, law, contact, args.current))
     executor.close()
     for engine in engines:
         heatmap(rows, engine, RESULTS_DIR / f"{name}_{engine}.png")
-    print(markdown(rows, engines, seeds, law, contact))
+    print(markdown(rows, engines, seeds, law, contact, args.current))
     return 0
 
 

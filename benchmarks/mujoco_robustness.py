@@ -35,8 +35,13 @@ constant instead of 20 ms, :func:`sysid.generators.mujoco_recording.stiff_contac
 our ground can follow MuJoCo's (``benchmarks/contact_time_constant.py``); results then go to
 ``mujoco_robustness_stiff.{json,md}``.
 
+``--current`` logs the motor currents in the same runs (every other draw is unchanged: the
+current's noise has its own generator), as a Dynamixel's Present Current: the drive torque over
+``r Km``, with 20 mA of noise and 2.69 mA resolution. The diagnosis then fits them as a third
+channel (``DiagnoseConfig.use_current``); results go to ``*_current.{json,md}``.
+
 Run: ``.venv/bin/python benchmarks/mujoco_robustness.py [--cases none,frictionloss] [--seeds 11]
-[--duration 6] [--contact stiff] [--effect-sizes]``.
+[--duration 6] [--contact stiff] [--current] [--effect-sizes]``.
 """
 from __future__ import annotations
 
@@ -86,15 +91,17 @@ def _cases(base: TwinOptions) -> dict[str, tuple[str, dict[str, Any]]]:
 
 
 def make_data(options: TwinOptions, truth: ModelParameters, duration_s: float, model: CobraModel,
-              progress: Callable[[str], None], seed: int = 3) -> tuple[list[Run], list[Run]]:
-    """9 MuJoCo runs of ``duration_s`` [s] (3 per gait): the first 6 to train, the last 3 held out."""
+              progress: Callable[[str], None], seed: int = 3, log_current: bool = False
+              ) -> tuple[list[Run], list[Run]]:
+    """9 MuJoCo runs of ``duration_s`` [s] (3 per gait): the first 6 to train, the last 3 held
+    out; with ``log_current`` the same runs with their motor currents logged too."""
     rng = np.random.default_rng(seed)
     plans = [RunPlan(f"r{i}", f, duration_s, (rng.uniform(-1, 1), rng.uniform(-1, 1)), rng.uniform(0, 2 * np.pi),
                      "train") for i, f in enumerate((0.35, 0.5, 0.65) * 3)]
     runs = []
     for k, plan in enumerate(plans):
         progress(f"recording run {k + 1}/{len(plans)} ({plan.freq_hz} Hz, {duration_s:g} s) in MuJoCo")
-        runs.append(record_mujoco(plan, options, rng, model, truth))
+        runs.append(record_mujoco(plan, options, rng, model, truth, log_current=log_current))
     return runs[:6], runs[6:]
 
 
@@ -134,6 +141,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--contact", choices=CONTACTS, default="default",
                         help="MuJoCo's contact: its default soft one (solref 20 ms; results mujoco_robustness.*) "
                              "or near rigid (2 ms, sysid.generators.mujoco_recording.stiff_contact; mujoco_robustness_stiff.*)")
+    parser.add_argument("--current", action="store_true",
+                        help="log the motor currents in MuJoCo's runs (drive torque / r Km, with a Present Current's "
+                             "noise and resolution); the diagnosis then fits them too (results *_current.*)")
     parser.add_argument("--effect-sizes", action="store_true",
                         help="print each effect's size beside our simulator's difference from MuJoCo; no diagnosis")
     args = parser.parse_args(argv)
@@ -147,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     if any(x in DEV_SEEDS for x in seeds):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     base = twin_options(truth) if args.contact == "default" else stiff_contact(twin_options(truth))
-    name = "mujoco_robustness" if args.contact == "default" else "mujoco_robustness_stiff"
+    name = ("mujoco_robustness" if args.contact == "default" else "mujoco_robustness_stiff") \
+        + ("_current" if args.current else "")
     model = CobraModel.load()
     if args.effect_sizes:
         effect_sizes(chosen, cases, base, truth, args.duration, model)
@@ -161,7 +172,7 @@ def main(argv: list[str] | None = None) -> int:
             progress = lambda msg, case=case, t_case=t_case, seed=seed: print(  # noqa: E731
                 f"[{case} seed {seed} {time.perf_counter() - t_case:5.0f} s] {msg}", file=sys.stderr, flush=True)
             train, hold = make_data(dataclasses.replace(base, **changes), truth, args.duration, model, progress,
-                                    seed=seed)
+                                    seed=seed, log_current=args.current)
             t0 = time.perf_counter()
             d = diagnose(train, hold, params=start, config=DiagnoseConfig(max_effects=2), progress=progress)
             rows.append(row(case, label, seed, d, time.perf_counter() - t0))
@@ -213,7 +224,7 @@ def markdown(rows: list[dict]) -> str:
 def meta(args: argparse.Namespace, seeds: list[int], chosen: list[str], base: TwinOptions) -> dict:
     """What was run."""
     return {"cases": chosen, "seeds": seeds, "dev_seeds": list(DEV_SEEDS), "duration_s": args.duration,
-            "contact": args.contact,
+            "contact": args.contact, "motor_currents": args.current,
             "truth": TRUTH, "free": FREE, "twin": dataclasses.asdict(base),
             "library": list(EffectLibrary().names)}
 

@@ -34,3 +34,8 @@ I_GAIN_DIVISOR = 65536.0
 D_GAIN_DIVISOR = 16.0
 #: Largest value of a position-loop gain register.
 GAIN_REGISTER_MAX = 16383
+#: Present Current resolution [A per unit] (2.69 mA/unit).
+AMP_PER_CURRENT_UNIT = 2.69e-3
+#: A Present Current reading's noise [A RMS] (about 20 mA; what a measured run's currents are
+#: given in :mod:`sysid.generators.dataset` and the floor of the current channel's weight).
+CURRENT_NOISE_A = 0.02

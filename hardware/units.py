@@ -19,12 +19,10 @@ import math
 
 import numpy as np
 
-from cobra_model.servo import POSITION_CENTER_PULSE, RAD_PER_PULSE
+from cobra_model.servo import AMP_PER_CURRENT_UNIT, POSITION_CENTER_PULSE, RAD_PER_PULSE
 
 #: Velocity resolution [rad/s per unit] (0.229 rpm/unit).
 RAD_S_PER_VELOCITY_UNIT = 0.229 * 2.0 * math.pi / 60.0
-#: Current resolution [A per unit] (2.69 mA/unit).
-AMP_PER_CURRENT_UNIT = 2.69e-3
 #: Profile acceleration resolution [rad/s^2 per unit] (214.577 rev/min^2 per unit).
 RAD_S2_PER_ACCELERATION_UNIT = 214.577 * 2.0 * math.pi / 3600.0
 

@@ -358,8 +358,9 @@ def actuator_torques(duty, qd, torque_on, act, voltage, resistance, tau_out, cur
     """Spong's DC motor behind the gearbox, at the joint.
 
     ``i = (duty V - r Km qdot) / R`` [A], ``tau = r Km i - b qdot - tau_c tanh(qdot / eps_c)``
-    clipped at ``tau_max`` [N m] (``act`` columns: damping b, r*Km, Coulomb tau_c, tau_max,
-    eps_c). With torque off the motor circuit is open: no motor torque, no current.
+    with the motor torque ``r Km i`` clipped at ``tau_max`` [N m] as a current limit clips it:
+    the current too, at ``tau_max / (r Km)`` (``act`` columns: damping b, r*Km, Coulomb tau_c,
+    tau_max, eps_c). With torque off the motor circuit is open: no motor torque, no current.
     """
     for j in range(duty.shape[0]):
         rkm = act[j, A_RKM]
@@ -371,8 +372,10 @@ def actuator_torques(duty, qd, torque_on, act, voltage, resistance, tau_out, cur
         tmax = act[j, A_TAU_MAX]
         if tau > tmax:
             tau = tmax
+            i = tmax / rkm
         elif tau < -tmax:
             tau = -tmax
+            i = -tmax / rkm
         tau -= act[j, A_DAMPING] * qd[j]
         if act[j, A_COULOMB] > 0.0:
             tau -= act[j, A_COULOMB] * np.tanh(qd[j] / act[j, A_COULOMB_EPS])

@@ -19,7 +19,8 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.generators.dataset import RunPlan, record
-from sysid.discrepancy.diagnose import balanced_weights
+from cobra_model.errors import InputError
+from sysid.discrepancy.diagnose import DiagnoseConfig, balanced_weights, channel_weights
 from sysid.identification.objective import Objective, Weights
 
 PARAMS = ModelParameters.nominal().with_frozen(free=["mu_c"])
@@ -104,3 +105,17 @@ def test_residual_weights_give_each_channel_unit_variance(runs):
     assert w.head_scale_m > 0.05 and 0.004 < w.joint_scale_rad < 0.006
     for name, r in objective.with_weights(w).channel_residuals(x).items():
         assert np.sqrt(np.mean(r ** 2)) == pytest.approx(1.0, rel=1e-9), name
+
+
+def test_the_diagnosis_fits_motor_currents_when_every_run_has_them(runs):
+    """``DiagnoseConfig.use_current``: None fits the currents when every run logged them, True
+    demands them (naming the run that lacks them), False leaves them out."""
+    model = CobraModel.load()
+    sim = Simulator(model, PARAMS)
+    logged = [record(sim, RunPlan("c", 0.5, 2.0, (0.0, 0.0), 0.3, "train"), np.random.default_rng(5), model,
+                     log_current=True)]
+    assert channel_weights(logged + logged, DiagnoseConfig()).use_current
+    assert not channel_weights(logged + runs, DiagnoseConfig()).use_current
+    assert not channel_weights(logged, DiagnoseConfig(use_current=False)).use_current
+    with pytest.raises(InputError, match="without motor currents"):
+        channel_weights(logged + runs, DiagnoseConfig(use_current=True))

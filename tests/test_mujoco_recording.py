@@ -12,7 +12,7 @@ from cobra_model.parameters import ModelParameters
 from cobra_model.run_files import read_run, write_run
 from integrators import mujoco_twin
 from integrators.simulator import Simulator
-from cobra_model.servo import PULSES_PER_REV
+from cobra_model.servo import AMP_PER_CURRENT_UNIT, CURRENT_NOISE_A, PULSES_PER_REV, SERVO_GEAR_RATIO
 from sysid.generators.dataset import DATA_DIR, JOINT_RATE_HZ, RunPlan, load_manifest, measure
 from sysid.generators.mujoco_recording import record_mujoco, twin_options
 
@@ -175,3 +175,18 @@ def test_our_simulator_follows_mujocos_stiff_contact_at_mujocos_values(cobra, fr
     travel = np.linalg.norm(q_mj[-1, :2] - q0[:2])
     assert travel > 0.8                                   # it sidewinds in MuJoCo
     assert np.linalg.norm(ours[-1, :2] - q_mj[-1, :2]) <= 0.035, (ours[-1, :2], q_mj[-1, :2])
+
+
+def test_logged_currents_are_the_drive_torque_over_r_km(cobra, baseline):
+    """``log_current``: the same run (every other column equal) with the motor currents, each
+    servo's drive torque over ``r Km``: a 2 N m ``forcerange`` caps them at ``2 / r Km`` as a
+    current limit would, a cap the uncapped run's peaks exceed."""
+    rkm = PARAMS.motor_km * SERVO_GEAR_RATIO
+    logged = record_mujoco(PLAN, twin_options(PARAMS), np.random.default_rng(1), cobra, PARAMS, log_current=True)
+    assert baseline.current is None and logged.current.shape == logged.q.shape
+    assert np.array_equal(logged.q, baseline.q) and np.array_equal(logged.head_pos, baseline.head_pos, equal_nan=True)
+    capped = record_mujoco(PLAN, dataclasses.replace(twin_options(PARAMS), forcerange=2.0), np.random.default_rng(1),
+                           cobra, PARAMS, log_current=True)
+    margin = 4 * CURRENT_NOISE_A + AMP_PER_CURRENT_UNIT  # four noise sigmas and one count
+    assert np.abs(capped.current).max() <= 2.0 / rkm + margin
+    assert np.abs(logged.current).max() > 2.0 / rkm + margin

@@ -90,6 +90,11 @@ class DiagnoseConfig:
         balance_channels: after the base fit, down-weight the head path if its unexplained
             residual outweighs the joints' (:func:`balanced_weights`), for every later fit and
             judgement.
+        use_current: fit the motor currents as a third channel in every fit and judgement
+            (``Weights.use_current``); None: when every training and held-out run has them.
+            A servo's current is the torque its motor applies: it tells joint friction (the
+            motor pushes harder whenever the joint moves) from backlash (it pushes less while
+            the error is inside the dead zone), which lag the encoders alike.
     """
 
     max_effects: int = 2
@@ -101,6 +106,21 @@ class DiagnoseConfig:
     min_improvement: float = 0.2
     bic_threshold: float = -10.0
     balance_channels: bool = True
+    use_current: bool | None = None
+
+
+def channel_weights(runs: Sequence[Run], config: DiagnoseConfig) -> Weights:
+    """The objective's default weights, fitting the motor currents when ``config.use_current``
+    says so (None: when every run of ``runs`` has them).
+
+    Raises:
+        InputError: ``use_current`` is True and a run has no motor currents (naming it).
+    """
+    missing = [str(r.source or f"run {i}") for i, r in enumerate(runs) if r.current is None]
+    if config.use_current and missing:
+        raise InputError(f"use_current: runs without motor currents (current_1..current_11 columns): "
+                         f"{', '.join(missing)}")
+    return Weights(use_current=not missing if config.use_current is None else config.use_current)
 
 
 @dataclass(frozen=True)
@@ -262,7 +282,8 @@ class Diagnosis:
         return {
             "effects": [e.to_json() for e in self.effects],
             "channel_scales": {"head_scale_m": self.weights.head_scale_m,
-                               "joint_scale_rad": self.weights.joint_scale_rad},
+                               "joint_scale_rad": self.weights.joint_scale_rad,
+                               "current_scale_a": self.weights.current_scale_a if self.weights.use_current else None},
             "structural": [s.to_json() for s in self.structural],
             "contact_choice": self.contact_choice,
             "base_fit_starts": [s.to_json() for s in self.base_starts],
@@ -694,8 +715,10 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     start = params or ModelParameters.nominal()
     fit_set = spread_over_gaits(train, config.fit_runs)
     result = Diagnosis()
-    progress(f"fitting the current model ({', '.join(start.free_names)}) on {len(fit_set)} runs")
-    base_fits = fit_from_shapes(Objective(fit_set, start),
+    weights = channel_weights([*train, *holdout], config)
+    progress(f"fitting the current model ({', '.join(start.free_names)}) on {len(fit_set)} runs"
+             + (", their motor currents too" if weights.use_current else ""))
+    base_fits = fit_from_shapes(Objective(fit_set, start, weights),
                                 lambda objective: fit_lsq_steps(objective, max_iterations=config.fit_iterations),
                                 label="fitting the current model", progress=progress)
     base = base_fits.best
@@ -703,9 +726,8 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
     result.fits.append(base)
     current = base.params
     result.params_before = current
-    weights = Weights()
     if config.balance_channels:
-        weights = balanced_weights(Objective(fit_set, current), current.as_vector())
+        weights = balanced_weights(Objective(fit_set, current, weights), current.as_vector())
         progress(f"channel scales: head {100 * weights.head_scale_m:.1f} cm ~ joints "
                  f"{1000 * weights.joint_scale_rad:.1f} mrad")
     result.weights = weights
@@ -788,15 +810,17 @@ def _diagnose_each_law(train: Sequence[Run], holdout: Sequence[Run], law_starts:
                        library: EffectLibrary | None, config: DiagnoseConfig,
                        progress: Callable[[str], None]) -> Diagnosis:
     """:func:`diagnose` under each contact law of ``law_starts``; the diagnosis whose final
-    model has the lowest held-out cost (the objective's default weights, the same for every
-    law), with every law's outcome in its ``contact_choice``."""
+    model has the lowest held-out cost (the objective's default weights, with the motor currents
+    when the diagnosis fits them: the same for every law), with every law's outcome in its
+    ``contact_choice``."""
     t0 = time.perf_counter()
     outcomes = []
+    weights = channel_weights([*train, *holdout], config)
     for law, start in law_starts.items():
         d = diagnose(train, holdout, params=start, library=library, config=config,
                      progress=lambda message, law=law: progress(f"{law} contact law: {message}"))
         final = d.params_after
-        outcomes.append((float(Objective(list(holdout), final)(final.as_vector())), law, d))
+        outcomes.append((float(Objective(list(holdout), final, weights)(final.as_vector())), law, d))
     cost, law, chosen = min(outcomes, key=lambda o: o[0])
     chosen.contact_choice = {"chosen": law, "laws": [
         {"law": name, "held_out_cost": c, "effects": [e.name for e in d.effects],

@@ -34,7 +34,7 @@ from cobra_model.parameters import ModelParameters
 from cobra_model.resample import interpolate_quaternions, interpolate_rows
 from cobra_model.run import Run
 from cobra_model.run_files import write_run
-from cobra_model.servo import RAD_PER_PULSE
+from cobra_model.servo import AMP_PER_CURRENT_UNIT, CURRENT_NOISE_A, RAD_PER_PULSE
 from cobra_model.shipped import shipped_path
 from integrators.simulate import TRACKED_BODIES
 from integrators.simulator import Simulator, effect_parameter
@@ -112,7 +112,7 @@ REFERENCE_NOTE = f"reference dataset stand-in run (seed {SEED})"
 
 def measure(t: np.ndarray, q_pin: np.ndarray, q_joint_meas: np.ndarray, run_plan: RunPlan,
             rng: np.random.Generator, model: CobraModel, *, source: str = "hardware",
-            note: str = REFERENCE_NOTE) -> Run:
+            note: str = REFERENCE_NOTE, current: np.ndarray | None = None) -> Run:
     """'Measure' a true trajectory the way the reference dataset was measured (module docstring).
 
     Args:
@@ -126,11 +126,16 @@ def measure(t: np.ndarray, q_pin: np.ndarray, q_joint_meas: np.ndarray, run_plan
             noise, head dropouts, then per tracked body its noise and dropouts).
         model: places the tracked bodies (``model.body_centres``).
         source, note: the sidecar's ``"source"`` and the first words of its note.
+        current: (N, 11) true motor currents [A] at ``t``, logged like the servos' Present
+            Current (:data:`~cobra_model.servo.CURRENT_NOISE_A` of noise, then rounded to
+            :data:`~cobra_model.servo.AMP_PER_CURRENT_UNIT`); None: no current columns. Its
+            noise comes from a generator spawned from ``rng``, which leaves ``rng``'s own draws
+            as they are: with or without currents, runs are otherwise the same.
 
     Returns:
         The run on the 50 Hz jittered joint-log times: commands ``q_ref`` (the gait's), quantised
         encoders ``q``, head pose and :data:`~integrators.simulate.TRACKED_BODIES` with mocap noise
-        and dropouts (NaN).
+        and dropouts (NaN), and the motor currents if ``current`` is given.
 
     Raises:
         InputError: naming the argument whose shape does not fit ``t``.
@@ -143,6 +148,8 @@ def measure(t: np.ndarray, q_pin: np.ndarray, q_joint_meas: np.ndarray, run_plan
         raise InputError(f"measure: q_pin must be ({n}, {model.nq}) to match t, got {q_pin.shape}")
     if q_joint_meas.shape != (n, model.n_joints):
         raise InputError(f"measure: q_joint_meas must be ({n}, {model.n_joints}) to match t, got {q_joint_meas.shape}")
+    if current is not None and np.shape(current) != (n, model.n_joints):
+        raise InputError(f"measure: current must be ({n}, {model.n_joints}) to match t, got {np.shape(current)}")
     gait = SidewindingGait(run_plan.freq_hz)
     # joint log: 50 Hz with jitter, quantised encoders, the goals that were sent
     n_j = int(run_plan.duration_s * JOINT_RATE_HZ)
@@ -168,6 +175,11 @@ def measure(t: np.ndarray, q_pin: np.ndarray, q_joint_meas: np.ndarray, run_plan
         pos = interpolate_rows(t_m, t[::every], tracks[name]) + rng.normal(0, MOCAP_NOISE_M, (len(t_m), 3))
         pos[_dropouts(rng, len(t_m))] = np.nan
         bodies[name] = np.round(interpolate_rows(t_j, t_m, pos, max_gap_samples=0), 5)
+    logged = None
+    if current is not None:
+        logged = interpolate_rows(t_j, t, np.asarray(current, dtype=float))
+        noise = rng.spawn(1)[0].normal(0, CURRENT_NOISE_A, logged.shape)
+        logged = np.round((logged + noise) / AMP_PER_CURRENT_UNIT) * AMP_PER_CURRENT_UNIT
     meta = {
         "format": "cobra-run/1", "source": source, "gait": gait.to_json(),
         "notes": [f"{note}; joint log {JOINT_RATE_HZ:g} Hz, "
@@ -177,15 +189,17 @@ def measure(t: np.ndarray, q_pin: np.ndarray, q_joint_meas: np.ndarray, run_plan
     return Run(t=t_j, q_ref=np.round(q_ref, 7), q=q_meas,
                head_pos=np.round(interpolate_rows(t_j, t_m, head, max_gap_samples=0), 5),
                head_quat=np.round(interpolate_quaternions(t_j, t_m, quat, max_gap_samples=0), 6),
-               bodies=bodies, meta=meta)
+               bodies=bodies, meta=meta, current=logged)
 
 
-def record(sim: Simulator, run_plan: RunPlan, rng: np.random.Generator, model: CobraModel) -> Run:
-    """Simulate one run on the ground-truth robot and 'measure' it (:func:`measure`)."""
+def record(sim: Simulator, run_plan: RunPlan, rng: np.random.Generator, model: CobraModel, *,
+           log_current: bool = False) -> Run:
+    """Simulate one run on the ground-truth robot and 'measure' it (:func:`measure`; with
+    ``log_current`` also the motor currents, as the servos' Present Current)."""
     gait = SidewindingGait(run_plan.freq_hz)
     state = sim.rest_state(gait.q_ref(0.0), head_xy=run_plan.head_xy, heading_rad=run_plan.heading_rad)
     traj = sim.rollout(state, gait.q_ref, run_plan.duration_s, record_every=2)
-    return measure(traj.t, traj.q, traj.q_meas, run_plan, rng, model)
+    return measure(traj.t, traj.q, traj.q_meas, run_plan, rng, model, current=traj.current if log_current else None)
 
 
 def generate(out_dir: Path, *, force: bool = False, progress: Callable[[str], None] | None = None) -> list[Path]:

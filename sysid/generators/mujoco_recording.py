@@ -29,6 +29,7 @@ from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.run import Run
+from cobra_model.servo import SERVO_GEAR_RATIO
 from integrators import mujoco_twin
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulator import SimulationDiverged, Simulator
@@ -107,6 +108,14 @@ def contact_configurations(twin: TwinOptions) -> dict[str, TwinOptions]:
 def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarray], np.ndarray],
             duration_s: float, record_every: int = 2, error_limit_rad: float | None = None
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Run the MuJoCo twin from rest at ``q0`` with servo goals ``q_ref(t)``
+    (:func:`rollout_with_torques` without the actuator torques)."""
+    return rollout_with_torques(mj_model, q0, q_ref, duration_s, record_every, error_limit_rad)[:3]
+
+
+def rollout_with_torques(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarray], np.ndarray],
+                         duration_s: float, record_every: int = 2, error_limit_rad: float | None = None
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Run the MuJoCo twin from rest at ``q0`` with servo goals ``q_ref(t)``.
 
     Args:
@@ -119,8 +128,9 @@ def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarra
             (:func:`integrators.mujoco_twin.servo_error_limit`); None: linear servos.
 
     Returns:
-        ``(t, q, q_joints)``: times (N,) [s], configurations (N, nq) in Pinocchio's convention
-        (world frame) and joint angles (N, 11) [rad].
+        ``(t, q, q_joints, torque)``: times (N,) [s], configurations (N, nq) in Pinocchio's
+        convention (world frame), joint angles (N, 11) [rad] and the servos' drive torques (N,
+        11) [N m] (MuJoCo's ``actuator_force`` of the step before each sample, zero at the first).
 
     Raises:
         InputError: naming ``duration_s`` or ``record_every`` if not positive.
@@ -138,9 +148,11 @@ def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarra
     data = mujoco.MjData(mj_model)
     data.qpos[:], data.qvel[:] = mujoco_twin.pin_to_mj(np.asarray(q0, dtype=float), np.zeros(mj_model.nv))
     qpos = np.empty((n_steps // record_every + 1, mj_model.nq))
+    torque = np.empty((n_steps // record_every + 1, mj_model.nu))
     for i in range(n_steps + 1):
         if i % record_every == 0:
             qpos[i // record_every] = data.qpos
+            torque[i // record_every] = data.actuator_force
         if i == n_steps:
             break
         if error_limit_rad is None:
@@ -155,11 +167,11 @@ def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarra
                                  f"freedom {bad.lastinfo}) and reset the state: the twin diverged")
     zero_v = np.zeros(mj_model.nv)
     q = np.array([mujoco_twin.mj_to_pin(row, zero_v)[0] for row in qpos])
-    return np.arange(len(qpos)) * record_every * dt, q, qpos[:, 7:].copy()
+    return np.arange(len(qpos)) * record_every * dt, q, qpos[:, 7:].copy(), torque
 
 
 def record_mujoco(run_plan: RunPlan, options: TwinOptions, rng: np.random.Generator, model: CobraModel,
-                  params: ModelParameters | None = None) -> Run:
+                  params: ModelParameters | None = None, *, log_current: bool = False) -> Run:
     """Simulate one run in MuJoCo and 'measure' it like the reference dataset.
 
     Args:
@@ -168,6 +180,10 @@ def record_mujoco(run_plan: RunPlan, options: TwinOptions, rng: np.random.Genera
         rng: measurement noise source (same draws as :func:`sysid.generators.dataset.record`).
         model: our model of the same URDF (initial pose, tracked bodies).
         params: servo gains through ``motor_km`` (default nominal).
+        log_current: also log the motor currents as the servos' Present Current: each drive
+            torque over ``r Km`` (the linearised servo's torque is the DC motor's ``r Km i``,
+            :func:`integrators.stability.servo_stiffness_damping`; a ``forcerange`` clips
+            it as a current limit would).
 
     Returns:
         A run with the reference dataset's columns and rates; sidecar ``"source": "mujoco"``.
@@ -191,11 +207,12 @@ def record_mujoco(run_plan: RunPlan, options: TwinOptions, rng: np.random.Genera
     q0 = Simulator(model).rest_state(goals(np.zeros(1))[0], head_xy=run_plan.head_xy,
                                      heading_rad=run_plan.heading_rad).q
     mj_model = mujoco_twin.build(model.urdf_path, options, params)
-    t, q, q_joints = rollout(mj_model, q0, goals, run_plan.duration_s,
-                             record_every=max(1, round(RECORD_DT_S / options.timestep)),
-                             error_limit_rad=mujoco_twin.servo_error_limit(options))
+    t, q, q_joints, torque = rollout_with_torques(mj_model, q0, goals, run_plan.duration_s,
+                                                  record_every=max(1, round(RECORD_DT_S / options.timestep)),
+                                                  error_limit_rad=mujoco_twin.servo_error_limit(options))
+    rkm = (params or ModelParameters.nominal()).value("motor_km") * SERVO_GEAR_RATIO
     return measure(t, q, q_joints + offset, run_plan, rng, model, source="mujoco",
-                   note=f"MuJoCo twin run ({describe(options)})")
+                   note=f"MuJoCo twin run ({describe(options)})", current=torque / rkm if log_current else None)
 
 
 def describe(options: TwinOptions) -> str:

@@ -34,7 +34,7 @@ from cobra_model.model import DEFAULT_URDF, CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.resample import interpolate_rows
 from cobra_model.run import Run
-from cobra_model.servo import PULSES_PER_REV
+from cobra_model.servo import CURRENT_NOISE_A, PULSES_PER_REV
 from integrators import kernels as K
 from integrators.batch import BatchSimulator, Divergence
 from integrators.simulate import InitialPose, StartObservation, command_ticks
@@ -46,7 +46,7 @@ from sysid.identification.executor import Executor, LocalExecutor
 #: sets a scale: motion capture's position noise [m], the encoders' rounding (one count of
 #: ``PULSES_PER_REV`` per turn, uniform: ``2 pi / 4096 / sqrt 12``) [rad], a Present Current
 #: reading's noise [A].
-SENSOR_NOISE = {"head": 0.5e-3, "joints": 2 * np.pi / PULSES_PER_REV / np.sqrt(12), "current": 0.02}
+SENSOR_NOISE = {"head": 0.5e-3, "joints": 2 * np.pi / PULSES_PER_REV / np.sqrt(12), "current": CURRENT_NOISE_A}
 
 
 @dataclass(frozen=True)
