@@ -34,7 +34,10 @@ bench: $(STAMP)
 	$(PY) benchmarks/diagnose_accuracy.py
 	$(PY) benchmarks/mujoco_robustness.py
 	$(PY) benchmarks/mujoco_robustness.py --contact stiff
+	$(PY) benchmarks/mujoco_robustness.py --current
+	$(PY) benchmarks/mujoco_robustness.py --contact stiff --current
 	$(PY) benchmarks/diagnose_matrix.py
+	$(PY) benchmarks/diagnose_matrix.py --current
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law choose
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint --mujoco-contact stiff

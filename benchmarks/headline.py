@@ -73,6 +73,9 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
         contact = doc["meta"].get("mujoco_contact", "twin")  # files written before it was asked: the twin's
         where = ("on this simulator's runs" if s["engine"] == "sim" else
                  "on MuJoCo's runs" + (f" with its {contact} contact" if contact != "twin" else ""))
+        if doc["meta"].get("motor_currents"):
+            where += " with motor currents logged and fitted"
+
         if s["engine"] == "mujoco":
             # a file written before the elliptic law existed chose between the first two laws
             among = doc["meta"].get("mujoco_contact_laws", ["compliant", "soft_constraint"])
@@ -190,7 +193,8 @@ def _contact_law(doc: dict) -> list[tuple[str, str, str]]:
 def _robustness(doc: dict) -> list[tuple[str, str, str]]:
     named = ", ".join(f"{r['label']}: {', '.join(r['named']) or 'none'}" for r in doc["rows"])
     contact = "stiff (2 ms)" if doc["meta"].get("contact") == "stiff" else "default (20 ms)"
-    return [(f"diagnosis on MuJoCo's 6 s runs, {contact} contact, effect added -> named", named,
+    currents = ", motor currents logged and fitted" if doc["meta"].get("motor_currents") else ""
+    return [(f"diagnosis on MuJoCo's 6 s runs, {contact} contact{currents}, effect added -> named", named,
              "the effect added; none for none")]
 
 
@@ -207,11 +211,11 @@ def _faults(doc: dict) -> list[tuple[str, str, str]]:
 
 #: Results file -> how its headline rows are read.
 SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
-    "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix,
+    "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix, "diagnose_matrix_current": _matrix,
     "diagnose_matrix_soft_constraint": _matrix, "diagnose_matrix_choose": _matrix,
     "diagnose_matrix_soft_constraint_stiff": _matrix, "effect_signal": _signal,
     "diagnose_accuracy": _accuracy,
-    "mujoco_robustness": _robustness,
+    "mujoco_robustness": _robustness, "mujoco_robustness_current": _robustness,
     "mujoco_robustness_stiff": _robustness, "mujoco_fit_residual": _mujoco_fit,
     "contact_time_constant": _contact_time_constant,
     "contact_law": _contact_law,

@@ -35,6 +35,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fit-runs", type=int, default=DiagnoseConfig.fit_runs,
                    help=f"training runs used by the fits, spread over the gaits (default "
                         f"{DiagnoseConfig.fit_runs}; 0 = all)")
+    p.add_argument("--no-current", action="store_true",
+                   help="leave the motor currents out (default: when every run has current_1..current_11, the fits "
+                        "and judgements weigh them as a third channel beside the head path and the joints)")
     p.add_argument("--force", action="store_true", help="overwrite outputs in --out")
     p.add_argument("--no-check", action="store_true", help="skip the data check before fitting (gaps, "
                    "dropouts, saturated joints, parameters the runs cannot pin down, which it freezes)")
@@ -44,13 +47,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     return diagnose_to(args.out, args.runs, holdout=args.holdout, max_effects=args.max_effects, params=args.params,
                        contact_law=args.contact, free=args.free, fit_runs=args.fit_runs, force=args.force, check=not args.no_check,
-                       json_out=args.json)
+                       json_out=args.json, use_current=False if args.no_current else None)
 
 
 def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), max_effects: int = 2,
                 params: str | None = None, contact_law: str | None = None, free: str | None = None,
                 fit_runs: int = DiagnoseConfig.fit_runs,
-                force: bool = False, check: bool = True, json_out: bool = False) -> int:
+                force: bool = False, check: bool = True, json_out: bool = False,
+                use_current: bool | None = None) -> int:
     """``cobra diagnose``'s work (also ``cobra demo``'s last step): the arguments are the command's
     options; writes ``OUTPUTS`` into ``out`` and prints the summary (or the JSON). Returns 0."""
     if out.exists() and not out.is_dir():
@@ -68,7 +72,7 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
     # with --json, stdout carries only the JSON
     starts, checks = law_starts(params, contact_law, free, None, train, held, check=check,
                                 out=sys.stderr if json_out else sys.stdout)
-    config = DiagnoseConfig(max_effects=max_effects, fit_runs=fit_runs)
+    config = DiagnoseConfig(max_effects=max_effects, fit_runs=fit_runs, use_current=use_current)
     from tqdm import tqdm
     bar = tqdm(desc="diagnose", unit="step", leave=False, disable=None)
 

@@ -16,6 +16,7 @@ from cobra_model.run import Run
 from cobra_model.run_files import write_run
 from integrators.simulate import simulate_gait
 from sysid.discrepancy.effects import EffectLibrary
+from sysid.identification.objective import Weights
 from sysid.identification.splits import expand
 
 TRUTH = ModelParameters.nominal().with_values(mu_c=0.22)
@@ -72,12 +73,23 @@ def test_diagnose_writes_report_json_and_a_usable_model(data, tmp_path, capsys):
     effect = NamedEffect.from_json(doc["effects"][0])   # the file holds the typed result
     assert effect.parameter == "joint_coulomb" and abs(effect.value - 0.4) < 0.05
     assert effect.held_out_cost_reduction > 0.5
+    # `cobra simulate`'s runs log the motor currents: every fit and judgement weighed them
+    assert doc["channel_scales"]["current_scale_a"] == Weights().current_scale_a
     assert (out / "report.html").is_file() and (out / "signature.png").is_file()
     # the augmented model is a parameter file the other commands accept
     sim = tmp_path / "sim.csv"
     assert main(["simulate", "--from", str(hold), "--params", str(out / "augmented_params.json"),
                  "--out", str(sim)]) == 0
     assert np.isfinite(json.loads(sim.with_suffix(".json").read_text())["params"]["parameters"]["mu_c"]["value"])
+
+
+@pytest.mark.slow
+def test_diagnose_leaves_the_currents_out_when_asked(data, tmp_path):
+    train, hold = data
+    out = tmp_path / "diag"
+    assert main(["diagnose", *map(str, train), "--holdout", str(hold), "--out", str(out), "--free", "mu_c",
+                 "--max-effects", "0", "--no-current", "--no-check"]) == 0
+    assert json.loads((out / "diagnosis.json").read_text())["channel_scales"]["current_scale_a"] is None
 
 
 @pytest.mark.parametrize("command", ["fit", "diagnose"])

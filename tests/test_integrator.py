@@ -21,7 +21,7 @@ import pytest
 from cobra_model import design, servo
 from cobra_model.gait import SidewindingGait
 from cobra_model.parameters import ModelParameters
-from integrators.simulator import ServoGains, SimSettings, SimulationDiverged, Simulator
+from integrators.simulator import ServoGains, SimSettings, SimulationDiverged, Simulator, effect_parameter
 from invariants import double_pendulum, energy, free_flight, solo, undamped_params
 
 
@@ -229,3 +229,19 @@ def test_rollout_is_the_single_step_repeated(cobra, law, scheme):
         st = stepper.step(st, table[i // 4], torque_on=on)
     assert np.array_equal(tr.q[n], st.q) and np.array_equal(tr.v[n], st.v)
     assert np.array_equal(tr.current[n], st.current)
+
+
+def test_a_torque_limit_clips_the_motor_current_with_the_torque(cobra):
+    """A 1 rad step demands the stall current; a 2 N m torque limit holds the motor current at
+    2 N m / (r Km) while it acts, as the servo's current limit does (the reported current never
+    runs past the torque)."""
+    params = ModelParameters.nominal().with_parameters([effect_parameter("torque_limit")]).with_values(torque_limit=2.0)
+    sim = Simulator(cobra, params)
+    goal = np.zeros(11)
+    goal[5] = 1.0
+    tr = sim.rollout(sim.rest_state(), goal[None, :], 0.3)
+    limit = 2.0 / (params.motor_km * servo.SERVO_GEAR_RATIO)
+    assert np.abs(tr.current).max() == pytest.approx(limit, rel=1e-12)
+    assert (np.abs(tr.current[:, 5]) > limit * (1 - 1e-12)).mean() > 0.5   # held at the limit most of the step
+    free = Simulator(cobra).rollout(Simulator(cobra).rest_state(), goal[None, :], 0.3)
+    assert np.abs(free.current[:, 5]).max() > 2 * limit
