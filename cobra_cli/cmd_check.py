@@ -15,6 +15,7 @@ from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters
 from cobra_model.run import Run
 from sysid.identification.datacheck import DataCheck, apply, check_runs
+from sysid.identification.objective import Weights
 from sysid.identification.splits import expand, read_runs
 
 #: Horizon [s] of the identifiability Jacobian (see :func:`sysid.identification.datacheck.check_runs`).
@@ -37,6 +38,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frozen", help="comma-separated names to hold fixed")
     p.add_argument("--horizon", type=float, default=DEFAULT_HORIZON_S, metavar="S",
                    help=f"horizon of the identifiability Jacobian [s] (default {DEFAULT_HORIZON_S:g})")
+    p.add_argument("--current", action="store_true",
+                   help="judge with the motor currents as a channel too, as `cobra fit --current` and `cobra diagnose` "
+                        "(when every run has them) fit them (needs current_1..current_11 in every training run)")
     p.add_argument("--json", action="store_true", help="print the check as JSON")
     p.set_defaults(func=run)
 
@@ -49,7 +53,7 @@ def run(args: argparse.Namespace) -> int:
     if not train_paths:
         raise InputError(f"{', '.join(args.runs)}: no training runs")
     check = check_runs(read_runs(train_paths), params, horizon_s=args.horizon, threads=1,
-                       held_out=read_runs(val_paths))
+                       held_out=read_runs(val_paths), weights=Weights(use_current=args.current))
     if args.json:
         print(json.dumps(check.to_json_dict(), indent=2))
     else:
@@ -65,9 +69,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def check_before_fit(train: Sequence[Run], params: ModelParameters, *, held_out: Sequence[Run] = (),
-                     horizon_s: float = DEFAULT_HORIZON_S, out: TextIO | None = None
-                     ) -> tuple[ModelParameters, DataCheck]:
-    """The data check ``cobra fit`` and ``cobra diagnose`` run before fitting.
+                     horizon_s: float = DEFAULT_HORIZON_S, out: TextIO | None = None,
+                     weights: Weights | None = None) -> tuple[ModelParameters, DataCheck]:
+    """The data check ``cobra fit`` and ``cobra diagnose`` run before fitting, on the channels
+    the fit will weigh (``weights``: with ``use_current`` the currents pin parameters too).
 
     Prints the check's findings to ``out`` (default stdout) and ``freezing NAME: reason`` for
     every parameter it freezes.
@@ -80,7 +85,7 @@ def check_before_fit(train: Sequence[Run], params: ModelParameters, *, held_out:
             parameters); ``--no-check`` skips the check.
     """
     out = out or sys.stdout
-    check = check_runs(train, params, horizon_s=horizon_s, threads=1, held_out=held_out)
+    check = check_runs(train, params, horizon_s=horizon_s, threads=1, held_out=held_out, weights=weights)
     for line in check.messages(parameters=False):
         print(line, file=out)
     if not check.ok:

@@ -9,7 +9,7 @@ from typing import Sequence
 
 from cobra_cli.common import add_contact_option, check_writable, law_starts, start_lines
 from cobra_model.errors import InputError
-from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
+from sysid.discrepancy.diagnose import DiagnoseConfig, channel_weights, diagnose
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.discrepancy.report import OUTPUTS, write_diagnosis
 from sysid.gap.report import head_text
@@ -69,10 +69,10 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
     if not train_paths or not val_paths:
         raise InputError("diagnose needs training runs and held-out runs (--holdout, or a manifest's validation)")
     train, held = read_runs(train_paths), read_runs(val_paths)
+    config = DiagnoseConfig(max_effects=max_effects, fit_runs=fit_runs, use_current=use_current)
     # with --json, stdout carries only the JSON
     starts, checks = law_starts(params, contact_law, free, None, train, held, check=check,
-                                out=sys.stderr if json_out else sys.stdout)
-    config = DiagnoseConfig(max_effects=max_effects, fit_runs=fit_runs, use_current=use_current)
+                                out=sys.stderr if json_out else sys.stdout, weights=channel_weights([*train, *held], config))
     from tqdm import tqdm
     bar = tqdm(desc="diagnose", unit="step", leave=False, disable=None)
 

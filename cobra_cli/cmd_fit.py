@@ -100,11 +100,11 @@ def run(args: argparse.Namespace) -> int:
                          "manifest with a validation split); none given")
     train = read_runs(train_paths)
     validation = read_runs(val_paths)
+    weights = Weights(use_current=args.current)
     starts, checks = law_starts(args.params, args.contact, args.free, args.frozen, train, validation,
-                                check=not args.no_check)
+                                check=not args.no_check, weights=weights)
     params = next(iter(starts.values()))
     executor = make_executor(args.executor, workers=args.workers, ray_address=args.ray_address)
-    weights = Weights(use_current=args.current)
     if choosing:
         print(f"fitting each contact law on {len(train)} runs, keeping the one with the lower cost on the "
               f"{len(validation)} held-out runs: "

@@ -13,6 +13,7 @@ from cobra_model.run import Run
 if TYPE_CHECKING:
     from sysid.identification.contact_choice import StartFit
     from sysid.identification.datacheck import DataCheck
+    from sysid.identification.objective import Weights
 
 
 def load_params(path: str | Path | None, contact_law: str | None = None) -> ModelParameters:
@@ -92,12 +93,13 @@ def _contact_value(text: str) -> str:
 
 
 def law_starts(path: str | Path | None, contact_law: str | None, free: str | None, frozen: str | None,
-               train: Sequence[Run], held_out: Sequence[Run], *, check: bool, out: TextIO | None = None
-               ) -> tuple[dict[str, ModelParameters], dict[str, DataCheck | None]]:
+               train: Sequence[Run], held_out: Sequence[Run], *, check: bool, out: TextIO | None = None,
+               weights: Weights | None = None) -> tuple[dict[str, ModelParameters], dict[str, DataCheck | None]]:
     """The starting parameters of ``cobra fit`` and ``cobra diagnose`` per contact law they try:
     the laws :func:`chosen_laws` reads from ``--contact``, else the one law given (the
     parameter file's when None), each from :func:`fit_start`, with the data check's frozen
-    parameters when ``check`` (run per law: each law frees its own ground parameters). Returns
+    parameters when ``check`` (run per law: each law frees its own ground parameters; on the
+    channels of ``weights``, the objective's defaults when None). Returns
     (law -> start, law -> data check or None); findings go to ``out`` (default stdout).
 
     Raises:
@@ -119,7 +121,7 @@ def law_starts(path: str | Path | None, contact_law: str | None, free: str | Non
         if check:
             if choosing:
                 print(f"data check of the {law} contact law's free parameters:", file=out or sys.stdout)
-            start, data_check = check_before_fit(train, start, held_out=held_out, out=out)
+            start, data_check = check_before_fit(train, start, held_out=held_out, out=out, weights=weights)
         starts[start.contact_law], checks[start.contact_law] = start, data_check
     return starts, checks
 
