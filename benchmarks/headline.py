@@ -75,7 +75,6 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
                  "on MuJoCo's runs" + (f" with its {contact} contact" if contact != "twin" else ""))
         if doc["meta"].get("motor_currents"):
             where += " with motor currents logged and fitted"
-
         if s["engine"] == "mujoco":
             # a file written before the elliptic law existed chose between the first two laws
             among = doc["meta"].get("mujoco_contact_laws", ["compliant", "soft_constraint"])
