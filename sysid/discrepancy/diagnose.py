@@ -6,7 +6,8 @@
    basin, e.g. a soft ground's on a stiff one), the lowest training cost kept;
    if its head-path residual outweighs its joints', weight the head channel down for every later
    fit and judgement (:func:`balanced_weights`: another engine's or the real ground leaves an
-   unexplained head drift that would drown a joint-side effect).
+   unexplained head drift that would drown a joint-side effect). When every run logged the
+   motor currents, every fit and judgement weighs them as a third channel (:func:`channel_weights`).
 2. **Localise** the disagreement of the fitted model on training and held-out runs
    (:func:`sysid.discrepancy.signature.localise`).
 3. **Try every candidate** of the :class:`sysid.discrepancy.effects.EffectLibrary`: add its parameter to the
