@@ -65,7 +65,7 @@ from sysid.discrepancy.effects import Effect, EffectLibrary
 from sysid.identification.contact_choice import StartFit, fit_from_shapes
 from sysid.identification.lockstep import Evaluate, Steps, run_together
 from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq, fit_lsq_steps, forward_steps
-from sysid.identification.objective import Objective, Weights
+from sysid.identification.objective import Objective, Weights, runs_without_current
 from sysid.identification.splits import spread_over_gaits
 from sysid.gap.report import GapSummary, HeldOut, head_text, pair_held_out
 from sysid.discrepancy.signature import Signature, localise
@@ -117,7 +117,7 @@ def channel_weights(runs: Sequence[Run], config: DiagnoseConfig) -> Weights:
     Raises:
         InputError: ``use_current`` is True and a run has no motor currents (naming it).
     """
-    missing = [str(r.source or f"run {i}") for i, r in enumerate(runs) if r.current is None]
+    missing = runs_without_current(runs)
     if config.use_current and missing:
         raise InputError(f"use_current: runs without motor currents (current_1..current_11 columns): "
                          f"{', '.join(missing)}")

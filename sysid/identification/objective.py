@@ -49,6 +49,11 @@ from sysid.identification.executor import Executor, LocalExecutor
 SENSOR_NOISE = {"head": 0.5e-3, "joints": 2 * np.pi / PULSES_PER_REV / np.sqrt(12), "current": CURRENT_NOISE_A}
 
 
+def runs_without_current(runs: Sequence[Run]) -> list[str]:
+    """The names (file, else ``run i``) of the runs that logged no motor currents."""
+    return [str(r.source or f"run {i}") for i, r in enumerate(runs) if r.current is None]
+
+
 @dataclass(frozen=True)
 class Weights:
     """Weights of the objective (documented defaults).
@@ -429,7 +434,7 @@ class Objective:
         if not self.params.free_names:
             raise InputError("every parameter is frozen: nothing to fit")
         if self.weights.use_current:
-            missing = [str(r.source or f"run {i}") for i, r in enumerate(self.runs) if r.current is None]
+            missing = runs_without_current(self.runs)
             if missing:
                 raise InputError(f"fitting the motor current needs current_1..current_11 columns in every run; "
                                  f"none in {', '.join(missing)}")
