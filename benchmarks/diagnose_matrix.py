@@ -14,8 +14,11 @@ or none (a null). Two engines make the data:
   are left out of MuJoCo's matrix.
 
 Magnitudes: each effect's realistic one (``Effect.realistic``) and one near its detection limit
-on this simulator (:data:`NEAR_LIMIT`, the smallest magnitudes named in the README's
-detection-limit table). Seeds: :data:`DEV_SEEDS` were used while developing the workflow and
+(:func:`near_limit`): a quarter of the way from where the effect starts to act to its realistic
+magnitude, the same rule for every effect. Most effects act as soon as their parameter leaves
+its inactive value; a torque limit (``Effect.acts_below_demand``) acts only below the largest
+torque the gait demands, so its way is measured from that demand on this design's runs (the
+development seed's, without the effect). Seeds: :data:`DEV_SEEDS` were used while developing the workflow and
 its tests; the reported figures come from ``--seeds`` (default :data:`EVAL_SEEDS`).
 
 Every diagnosis is an independent job run through the project's executor: on this machine one
@@ -74,7 +77,7 @@ from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from cobra_model.parameters import CONTACT_LAWS  # noqa: E402
 from integrators.simulator import Simulator  # noqa: E402
 from sysid.generators.dataset import RunPlan, record  # noqa: E402
-from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose  # noqa: E402
+from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose, torque_demand  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.identification.contact_choice import free_for_law  # noqa: E402
 from sysid.identification.executor import make_executor  # noqa: E402
@@ -91,10 +94,8 @@ EVAL_SEEDS = (31, 32, 33)
 MUJOCO_OPTIONS = {"joint_coulomb_friction": "frictionloss", "torque_saturation": "forcerange",
                   "actuator_delay": "command_delay", "encoder_offset": "encoder_offset",
                   "anisotropic_ground_friction": "lateral_friction_ratio"}
-#: Magnitudes near each effect's detection limit on this simulator (README, detection limit).
-NEAR_LIMIT = {"joint_coulomb_friction": 0.075, "backlash": 0.005, "actuator_delay": 0.01,
-              "torque_saturation": 3.9, "anisotropic_ground_friction": 1.25, "encoder_offset": 0.0075,
-              "link_mass_error": 0.2}
+#: How far towards its realistic magnitude a near-limit case hides an effect (:func:`near_limit`).
+NEAR_LIMIT_FRACTION = 0.25
 ENGINES = ("sim", "mujoco")
 #: MuJoCo's contact configurations for its runs (``--mujoco-contact``), around the twin of the
 #: robot with the parameter error ``ERROR``.
@@ -141,6 +142,26 @@ def make_runs(job: Job, model: CobraModel) -> list:
     options = dataclasses.replace(MUJOCO_CONTACTS[job.mujoco_contact],
                                   **{MUJOCO_OPTIONS[n]: v for n, v in job.hidden.items()})
     return [record_mujoco(p, options, rng, model, truth, log_current=job.current) for p in plans]
+
+
+@functools.lru_cache(maxsize=None)
+def near_limit(effect: str, duration_s: float) -> float:
+    """The magnitude near ``effect``'s detection limit on this design's runs of ``duration_s``:
+    :data:`NEAR_LIMIT_FRACTION` of the way from where the effect starts to act to its realistic
+    magnitude (parameter units).
+
+    An effect starts to act where its parameter leaves its inactive value, except a torque limit
+    (``Effect.acts_below_demand``): above the largest motor torque the gait demands it clips
+    nothing, so its way starts at that demand, measured on the development seed's runs made
+    without any effect (:func:`sysid.discrepancy.diagnose.torque_demand`), rounded to 0.01 N m.
+    """
+    spec = EffectLibrary()[effect]
+    if not spec.acts_below_demand:
+        onset = spec.parameter.value
+        return onset + NEAR_LIMIT_FRACTION * (spec.realistic - onset)
+    runs = make_runs(Job("sim", None, None, "null", DEV_SEEDS[0], duration_s), CobraModel.load())
+    onset = torque_demand(ModelParameters.nominal().with_values(**ERROR), runs)
+    return round(onset + NEAR_LIMIT_FRACTION * (spec.realistic - onset), 2)
 
 
 def run_job(job: Job) -> dict[str, Any]:
@@ -231,7 +252,7 @@ def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: l
                                 mujoco_contact=mujoco_contact if engine == "mujoco" else None, current=current)
         for effect in mine:
             for level in levels:
-                magnitude = library[effect].realistic if level == "realistic" else NEAR_LIMIT[effect]
+                magnitude = library[effect].realistic if level == "realistic" else near_limit(effect, duration_s)
                 out += [job(engine, effect, magnitude, level, seed) for seed in seeds]
         out += [job(engine, None, None, "null", seeds[k % len(seeds)] + 1000 * (k // len(seeds))) for k in range(nulls)]
         if pairs:

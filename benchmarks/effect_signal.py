@@ -1,8 +1,8 @@
 """How strongly each hidden effect of the confusion matrix shows in its runs, against the noise.
 
 The confusion matrix (``benchmarks/diagnose_matrix.py``) hides each library effect at a realistic
-magnitude and at one near its detection limit (:data:`~benchmarks.diagnose_matrix.NEAR_LIMIT`,
-taken from the README's detection-limit table, measured on longer runs). Whether a magnitude is
+magnitude and at one near its detection limit (:func:`~benchmarks.diagnose_matrix.near_limit`:
+a quarter of the way from where the effect starts to act to its realistic one). Whether a magnitude is
 *near* the limit or *past* it depends on the runs: a torque limit above every torque the gait
 demands does nothing at all. This script measures, on the matrix's own run design
 (:func:`~benchmarks.diagnose_matrix.make_runs`: two 0.5/0.65 Hz training runs and one 0.5 Hz
@@ -34,7 +34,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import write_results  # noqa: E402
 from benchmarks._args import number_list  # noqa: E402
-from benchmarks.diagnose_matrix import ENGINES, EVAL_SEEDS, MUJOCO_OPTIONS, NEAR_LIMIT, Job, make_runs  # noqa: E402
+from benchmarks.diagnose_matrix import ENGINES, EVAL_SEEDS, MUJOCO_OPTIONS, Job, make_runs, near_limit  # noqa: E402
 from cobra_model import CobraModel  # noqa: E402
 from cobra_model.run import Run  # noqa: E402
 from sysid.identification.objective import SENSOR_NOISE  # noqa: E402
@@ -70,11 +70,11 @@ def main(argv: list[str] | None = None) -> None:
     model, library = CobraModel.load(), EffectLibrary()
     rows = []
     for engine in engines:
-        effects = [e for e in NEAR_LIMIT if engine == "sim" or e in MUJOCO_OPTIONS]
+        effects = [e for e in library.names if engine == "sim" or e in MUJOCO_OPTIONS]
         for seed in seeds:
             base = make_runs(Job(engine, None, None, "null", seed, DURATION_S), model)
             for effect in effects:
-                for level, magnitude in (("realistic", library[effect].realistic), ("near_limit", NEAR_LIMIT[effect])):
+                for level, magnitude in (("realistic", library[effect].realistic), ("near_limit", near_limit(effect, DURATION_S))):
                     joints, head = signal(make_runs(Job(engine, effect, magnitude, level, seed, DURATION_S), model), base)
                     rows.append({"engine": engine, "effect": effect, "level": level, "magnitude": magnitude,
                                  "unit": "" if library[effect].parameter.unit == "1" else library[effect].parameter.unit, "seed": seed, "joints_rms_rad": joints,

@@ -10,8 +10,11 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.diagnose_matrix import (MUJOCO_CONTACTS, MUJOCO_OPTIONS, Job, finished_rows, job_key,  # noqa: E402
-                                        jobs_for, summary)
+from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, MUJOCO_CONTACTS, MUJOCO_OPTIONS, Job,  # noqa: E402
+                                        finished_rows, job_key, jobs_for, make_runs, near_limit, summary)
+from cobra_model import CobraModel, ModelParameters  # noqa: E402
+from sysid.discrepancy.diagnose import torque_demand  # noqa: E402
+from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from cobra_model.errors import InputError  # noqa: E402
 from sysid.gap.plots import plot_confusion  # noqa: E402
 
@@ -30,6 +33,21 @@ def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_expre
     nulls = [j for j in sim if j.effect is None]
     assert [j.seed for j in nulls] == [31, 32, 1031]  # distinct data for every null
     assert {j.magnitude for j in sim if j.effect == "actuator_delay"} == {0.04, 0.01}
+
+
+def test_near_limit_magnitudes_are_a_quarter_of_the_way_from_where_each_effect_starts_to_act() -> None:
+    library = EffectLibrary()
+    for effect in ("joint_coulomb_friction", "anisotropic_ground_friction", "link_mass_error"):
+        spec = library[effect]  # these act as soon as they leave their inactive value
+        assert near_limit(effect, 3.0) == pytest.approx(spec.parameter.value + 0.25 * (spec.realistic - spec.parameter.value))
+    # a torque limit acts only below the torque the gait demands: its way starts there, on the
+    # development seed's runs without any effect (each of this design's runs demands 3.9-4.2 N m)
+    runs = make_runs(Job("sim", None, None, "null", DEV_SEEDS[0], 3.0), CobraModel.load())
+    demand = torque_demand(ModelParameters.nominal().with_values(**ERROR), runs)
+    assert 3.9 < demand < 4.2
+    limit = near_limit("torque_saturation", 3.0)
+    assert library["torque_saturation"].realistic < limit < demand
+    assert demand - limit == pytest.approx(0.25 * (demand - library["torque_saturation"].realistic), abs=0.005)
 
 
 def test_pairs_hide_every_two_effects_an_engine_expresses_at_their_realistic_magnitudes() -> None:
