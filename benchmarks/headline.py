@@ -231,12 +231,18 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   weight at the reference pose).
 #: - A diagnosis names a checked candidate only if its effect carries the improvement itself
 #:   (``sysid.discrepancy.diagnose.effect_share``; CHANGELOG "eighteenth stop").
+#: - The confusion matrix's near-limit torque limit follows the rule of every other effect, a
+#:   quarter of the way from where it starts to act (3.72 N m, was 3.9 N m; CHANGELOG
+#:   "twenty-second stop").
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
     ("2026-11-26T08:57", "0af405b", "naming",
      ("diagnose_matrix", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_stiff")),
+    ("2026-11-26T19:10", "e45074c", "near-limit torque limit 3.9 N m",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff")),
 )
 
 
