@@ -36,6 +36,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/mujoco_robustness.py --contact stiff
 	$(PY) benchmarks/mujoco_robustness.py --current
 	$(PY) benchmarks/mujoco_robustness.py --contact stiff --current
+	$(PY) benchmarks/mujoco_robustness.py --contact-law soft_constraint
 	$(PY) benchmarks/diagnose_matrix.py
 	$(PY) benchmarks/diagnose_matrix.py --current
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint

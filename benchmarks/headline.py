@@ -193,7 +193,9 @@ def _robustness(doc: dict) -> list[tuple[str, str, str]]:
     named = ", ".join(f"{r['label']}: {', '.join(r['named']) or 'none'}" for r in doc["rows"])
     contact = "stiff (2 ms)" if doc["meta"].get("contact") == "stiff" else "default (20 ms)"
     currents = ", motor currents logged and fitted" if doc["meta"].get("motor_currents") else ""
-    return [(f"diagnosis on MuJoCo's 6 s runs, {contact} contact{currents}, effect added -> named", named,
+    law = doc["meta"].get("contact_law", "compliant")
+    law = "" if law == "compliant" else f", diagnosed under the {law.replace('_', '-')} law"
+    return [(f"diagnosis on MuJoCo's 6 s runs, {contact} contact{currents}{law}, effect added -> named", named,
              "the effect added; none for none")]
 
 
@@ -215,6 +217,7 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "diagnose_matrix_soft_constraint_stiff": _matrix, "effect_signal": _signal,
     "diagnose_accuracy": _accuracy,
     "mujoco_robustness": _robustness, "mujoco_robustness_current": _robustness,
+    "mujoco_robustness_soft_constraint": _robustness,
     "mujoco_robustness_stiff": _robustness, "mujoco_robustness_stiff_current": _robustness,
     "mujoco_fit_residual": _mujoco_fit,
     "contact_time_constant": _contact_time_constant,

@@ -40,8 +40,14 @@ current's noise has its own generator), as a Dynamixel's Present Current: the dr
 ``r Km``, with 20 mA of noise and 2.69 mA resolution. The diagnosis then fits them as a third
 channel (``DiagnoseConfig.use_current``); results go to ``*_current.{json,md}``.
 
+``--contact-law soft_constraint`` (or another of ``cobra_model.parameters.CONTACT_LAWS``)
+diagnoses under that law of our ground instead of the compliant one, with the law's own ground
+parameters freed and those it does not read frozen, as ``cobra diagnose --contact`` does (the
+law that ``cobra fit --contact choose`` keeps on MuJoCo's runs, ``mujoco_fit_residual.md``);
+results then go to ``..._<law>.{json,md}``.
+
 Run: ``.venv/bin/python benchmarks/mujoco_robustness.py [--cases none,frictionloss] [--seeds 11]
-[--duration 6] [--contact stiff] [--current] [--effect-sizes]``.
+[--duration 6] [--contact stiff] [--contact-law soft_constraint] [--current] [--effect-sizes]``.
 """
 from __future__ import annotations
 
@@ -57,6 +63,7 @@ from _results import write_results
 from _args import number_list
 
 from cobra_model import CobraModel, ModelParameters
+from cobra_model.parameters import CONTACT_LAWS
 from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulate import simulate_like
@@ -65,6 +72,7 @@ from sysid.generators.dataset import RunPlan
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.gap.metrics import compare_runs
+from sysid.identification.contact_choice import free_for_law
 from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_options
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
@@ -141,6 +149,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--contact", choices=CONTACTS, default="default",
                         help="MuJoCo's contact: its default soft one (solref 20 ms; results mujoco_robustness.*) "
                              "or near rigid (2 ms, sysid.generators.mujoco_recording.stiff_contact; mujoco_robustness_stiff.*)")
+    parser.add_argument("--contact-law", choices=CONTACT_LAWS, default="compliant",
+                        help="our ground's contact law in the diagnosis (default compliant; another writes "
+                             "..._<law>.*), its own ground parameters freed as `cobra diagnose --contact` does")
     parser.add_argument("--current", action="store_true",
                         help="log the motor currents in MuJoCo's runs (drive torque / r Km, with a Present Current's "
                              "noise and resolution); the diagnosis then fits them too (results *_current.*)")
@@ -158,12 +169,12 @@ def main(argv: list[str] | None = None) -> int:
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     base = twin_options(truth) if args.contact == "default" else stiff_contact(twin_options(truth))
     name = ("mujoco_robustness" if args.contact == "default" else "mujoco_robustness_stiff") \
-        + ("_current" if args.current else "")
+        + ("" if args.contact_law == "compliant" else f"_{args.contact_law}") + ("_current" if args.current else "")
     model = CobraModel.load()
     if args.effect_sizes:
         effect_sizes(chosen, cases, base, truth, args.duration, model)
         return 0
-    start = ModelParameters.nominal().with_frozen(free=FREE)
+    start = free_for_law(ModelParameters.nominal().with_contact_law(args.contact_law).with_frozen(free=FREE))[0]
     rows: list[dict] = []
     for seed in seeds:
         for case in chosen:
@@ -224,7 +235,7 @@ def markdown(rows: list[dict]) -> str:
 def meta(args: argparse.Namespace, seeds: list[int], chosen: list[str], base: TwinOptions) -> dict:
     """What was run."""
     return {"cases": chosen, "seeds": seeds, "dev_seeds": list(DEV_SEEDS), "duration_s": args.duration,
-            "contact": args.contact, "motor_currents": args.current,
+            "contact": args.contact, "contact_law": args.contact_law, "motor_currents": args.current,
             "truth": TRUTH, "free": FREE, "twin": dataclasses.asdict(base),
             "library": list(EffectLibrary().names)}
 

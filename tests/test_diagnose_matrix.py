@@ -12,10 +12,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, MUJOCO_CONTACTS, MUJOCO_OPTIONS, Job,  # noqa: E402
                                         finished_rows, job_key, jobs_for, make_runs, near_limit, summary)
+from benchmarks.effect_signal import ENCODER_FLOOR_RAD, HEAD_FLOOR_M, signal  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
+from cobra_model.errors import InputError  # noqa: E402
 from sysid.discrepancy.diagnose import torque_demand  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
-from cobra_model.errors import InputError  # noqa: E402
 from sysid.gap.plots import plot_confusion  # noqa: E402
 
 
@@ -42,12 +43,18 @@ def test_near_limit_magnitudes_are_a_quarter_of_the_way_from_where_each_effect_s
         assert near_limit(effect, 3.0) == pytest.approx(spec.parameter.value + 0.25 * (spec.realistic - spec.parameter.value))
     # a torque limit acts only below the torque the gait demands: its way starts there, on the
     # development seed's runs without any effect (each of this design's runs demands 3.9-4.2 N m)
-    runs = make_runs(Job("sim", None, None, "null", DEV_SEEDS[0], 3.0), CobraModel.load())
+    model = CobraModel.load()
+    runs = make_runs(Job("sim", None, None, "null", DEV_SEEDS[0], 3.0), model)
     demand = torque_demand(ModelParameters.nominal().with_values(**ERROR), runs)
     assert 3.9 < demand < 4.2
     limit = near_limit("torque_saturation", 3.0)
     assert library["torque_saturation"].realistic < limit < demand
     assert demand - limit == pytest.approx(0.25 * (demand - library["torque_saturation"].realistic), abs=0.005)
+    # near the detection limit, not past it: the limit moves the data above their noise floors
+    # (measured 1.9 x the encoders' quantisation and 7.2 x the motion capture's noise)
+    clipped = make_runs(Job("sim", "torque_saturation", limit, "near_limit", DEV_SEEDS[0], 3.0), model)
+    joints, head = signal(clipped, runs)
+    assert joints > ENCODER_FLOOR_RAD and head > 3 * HEAD_FLOOR_M
 
 
 def test_pairs_hide_every_two_effects_an_engine_expresses_at_their_realistic_magnitudes() -> None:
