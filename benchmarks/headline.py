@@ -237,6 +237,8 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #: - The confusion matrix's near-limit torque limit follows the rule of every other effect, a
 #:   quarter of the way from where it starts to act (3.72 N m, was 3.9 N m; CHANGELOG
 #:   "twenty-second stop").
+#: - A torque limit's profile of the unbent model spans 0.4-0.9 of the demand (was 0.6-0.9;
+#:   ``sysid.discrepancy.diagnose.DEMAND_PROFILE_FRACTIONS``, CHANGELOG "twenty-second stop").
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -246,6 +248,10 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-26T19:10", "e45074c", "near-limit torque limit 3.9 N m",
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff")),
+    ("2026-11-26T21:05", "1117380", "torque-limit profile",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+      "mujoco_robustness_stiff", "mujoco_robustness_stiff_current", "mujoco_robustness_soft_constraint")),
 )
 
 

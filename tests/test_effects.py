@@ -92,5 +92,9 @@ def test_screening_starts_lie_between_inactive_and_the_bounds(effect):
     if effect.acts_below_demand:
         grid = np.array(start_grid(effect, demand_nm=demand))
         assert grid.max() < demand and grid.max() >= 0.9 * demand and grid.min() < 2.0
+        # the unbent model's profile looks wherever a start would: a fit that bent the motor to
+        # mimic a limit hides it wherever the limit lies
+        profile = np.array(start_grid(effect, demand_nm=demand, coarse=True))
+        assert profile.min() == pytest.approx(grid.min()) and profile.max() <= grid.max()
         with pytest.raises(InputError, match=effect.name):
             start_grid(effect)
