@@ -193,9 +193,12 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def row(case: str, label: str, seed: int, d: Diagnosis, wall_s: float) -> dict:
-    """One table row of a diagnosis (see the module docstring)."""
+    """One table row of a diagnosis (see the module docstring); ``effects`` holds every named effect
+    as in ``diagnosis.json`` (fitted value, 95 % interval, evidence), ``round1`` the best three
+    candidates of round 1."""
     out = {"case": case, "label": label, "seed": seed, "named": [e.name for e in d.effects],
-           "structural": [s.to_json() for s in d.structural], "verdict": d.verdict, "wall_s": wall_s,
+           "effects": [e.to_json() for e in d.effects], "structural": [s.to_json() for s in d.structural],
+           "verdict": d.verdict, "wall_s": wall_s,
            "head_final_before_m": d.gap_before.head_final_error_m,
            "head_final_after_m": d.gap_after.head_final_error_m,
            "joint_rmse_before_rad": d.gap_before.joint_rmse_rad,
