@@ -19,6 +19,7 @@ from numba import njit, prange
 
 from cobra_model.parameters import Parameter
 from cobra_model.servo import PULSES_PER_REV, PWM_FULL_SCALE, SERVO_STALL_TORQUE_NM
+from integrators.native import ABA
 
 # Indices into the ground parameter array ``ground``.
 G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL, G_CONE, G_ROUND, G_TC = range(11)
@@ -561,6 +562,27 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
     return pre_step(i % plan[P_SUBSTEPS] == 0, q, v, goals[i // plan[P_SUBSTEPS]], servo[0], servo[1], servo[2],
                     torque_on, act, scal, ground, floating, chain_i, chain_R, chain_f, feat_i, feat_f, tau,
                     servo[3], X, F, kin_R, kin_v)
+
+
+@njit(cache=True)
+def rollout_loop(start, stop, aba_model, aba_data, plan, q, v, a, goals, servo, torque_on, act, scal, ground,
+                 chain_i, chain_R, chain_f, feat_i, feat_f, tau, work, record):
+    """Steps ``start`` to ``stop - 1`` of a rollout with the compliant ground in one compiled
+    loop: :func:`rollout_step`, then Pinocchio's ABA (:data:`integrators.native.ABA` on the
+    model and workspace handles ``aba_model``, ``aba_data``) into ``a``, the acceleration the
+    next step integrates. The arguments are :func:`rollout_step`'s.
+
+    Returns ``(status, i)``: 0 and the last step done, or :func:`rollout_step`'s non-zero status
+    at step ``i``. The loop ends after step ``plan[P_STEPS]`` (which only integrates and
+    records). A caller runs the rollout in chunks to report progress between them.
+    """
+    for i in range(start, stop):
+        status = rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R,
+                              chain_f, feat_i, feat_f, tau, work, record)
+        if status != STATUS_OK or i == plan[P_STEPS]:
+            return status, i
+        ABA(aba_model, aba_data, q.ctypes, v.ctypes, tau.ctypes, a.ctypes)
+    return STATUS_OK, stop - 1
 
 
 #: MuJoCo's default constraint impedance ``solimp`` (d0, d_width, width [m], midpoint, power) and

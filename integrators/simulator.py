@@ -48,7 +48,7 @@ from cobra_model.model import RobotModel
 from cobra_model.errors import InputError
 from cobra_model.parameters import WINDING_RESISTANCE_OHM, ModelParameters, Parameter
 from integrators import kernels as K
-from integrators import stability
+from integrators import native, stability
 from integrators.momentum_step import MomentumStep
 
 
@@ -364,6 +364,7 @@ class Simulator:
         self._X, self._F, self._kin_R, self._kin_v = K.workspace_views(self._work, len(f), len(ch.parents))
         self._momentum = MomentumStep(self.model, s.dt) if s.scheme == "momentum" else None
         self._soft_warm = np.zeros((len(f), 4))  # the soft-constraint solver's last edge forces [N]
+        self._native: native.NativeData | None = None  # the compiled loop's ABA workspace, made at its first use
 
     def with_gains(self, gains: ServoGains) -> "Simulator":
         """A simulator identical but for the servo gains."""
@@ -399,6 +400,11 @@ class Simulator:
     # -- stepping ---------------------------------------------------------------------------
     def _raise(self, status: int, t: float, q: np.ndarray, v: np.ndarray) -> None:
         raise SimulationDiverged(self.divergence_message(status, t, v, self._X))
+
+    def _raise_step(self, status: int, i: int, t0: float, q: np.ndarray, v: np.ndarray) -> None:
+        """Raise for :func:`integrators.kernels.rollout_step`'s ``status`` at step ``i`` of a rollout
+        from ``t0`` [s]: minus, step ``i - 1``'s integration failed; plus, step ``i``'s forces."""
+        self._raise(abs(status), t0 + (i - (status < 0)) * self.settings.dt, q, v)
 
     def divergence_message(self, status: int, t: float, v: np.ndarray, X: np.ndarray) -> str:
         """What blew up, where and when: the deepest contact point of ``X`` (n_features, 3)
@@ -549,28 +555,38 @@ class Simulator:
         ci, cR, cf, fi, ff = self._chain_i, self._chain_R, self._chain_f, self._feat_i, self._feat_f
         pinm, data = self._pin, self._data
         report_every = max(1, n_steps // 100)
-        kernel = K.rollout_step
-        # the compliant law's acceleration is ABA itself: called directly in this hot loop, not through
-        # _acceleration (a Python method call per step, about 1 % of it)
-        acceleration = pin.aba if self.contact_law == "compliant" else self._acceleration
-        for i in range(n_steps + 1):
-            status = kernel(i, plan, q, v, a, goals, servo, on, act, scal, ground, ci, cR, cf, fi, ff, tau, work,
-                            record)
-            if status:
-                # minus: step i - 1's integration failed; plus: step i's forces
-                self._raise(abs(status), state.t + (i - (status < 0)) * s.dt, q, v)
-            if i == n_steps:
-                break
-            if momentum is None:
-                a = acceleration(pinm, data, q, v, tau)
-            else:
-                status = self._momentum_step(q, v, tau, q_next, v_next)
+        if momentum is None and self.contact_law == "compliant":
+            # the whole loop compiled, ABA included (integrators.native); chunks only to report progress
+            if self._native is None:
+                self._native = native.NativeData(native.native_model(self.model))
+            handles = self._native.model.handle, self._native.handle
+            chunk = report_every if progress is not None else n_steps + 1
+            for start in range(0, n_steps + 1, chunk):
+                status, i = K.rollout_loop(start, min(start + chunk, n_steps + 1), *handles, plan, q, v, a, goals,
+                                           servo, on, act, scal, ground, ci, cR, cf, fi, ff, tau, work, record)
                 if status:
-                    self._raise(status, state.t + i * s.dt, q, v_next)
-                q, q_next = q_next, q
-                v, v_next = v_next, v
-            if progress is not None and i % report_every == 0:
-                progress(i / n_steps)
+                    self._raise_step(status, i, state.t, q, v)
+                if progress is not None:
+                    progress(min(start + chunk, n_steps) / n_steps)
+        else:
+            kernel = K.rollout_step
+            for i in range(n_steps + 1):
+                status = kernel(i, plan, q, v, a, goals, servo, on, act, scal, ground, ci, cR, cf, fi, ff, tau, work,
+                                record)
+                if status:
+                    self._raise_step(status, i, state.t, q, v)
+                if i == n_steps:
+                    break
+                if momentum is None:
+                    a = self._acceleration(pinm, data, q, v, tau)
+                else:
+                    status = self._momentum_step(q, v, tau, q_next, v_next)
+                    if status:
+                        self._raise(status, state.t + i * s.dt, q, v_next)
+                    q, q_next = q_next, q
+                    v, v_next = v_next, v
+                if progress is not None and i % report_every == 0:
+                    progress(i / n_steps)
         if progress is not None:
             progress(1.0)
         Q = np.ascontiguousarray(record[:, :nq])

@@ -22,7 +22,7 @@ import pytest
 pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parent.parent
 #: What a build needs: the metadata, the packages and the directories mapped into them as data.
-SOURCES = ("pyproject.toml", "README.md", "cobra_model", "integrators", "sysid", "hardware", "viz", "cobra_cli",
+SOURCES = ("pyproject.toml", "setup.py", "README.md", "cobra_model", "integrators", "sysid", "hardware", "viz", "cobra_cli",
            "urdf", "data", "examples")
 
 
@@ -38,7 +38,7 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     base = tmp_path_factory.mktemp("wheel")
     src = base / "src"
     src.mkdir()
-    ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "*.pyc")
+    ignore = shutil.ignore_patterns("__pycache__", "*.egg-info", "*.pyc", "*.so")  # the wheel builds its own extension
     for name in SOURCES:
         path = ROOT / name
         if path.is_dir():
@@ -64,6 +64,7 @@ def installed(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
     with zipfile.ZipFile(wheel) as zf:
         names = set(zf.namelist())
     assert {"cobra_model/urdf/cobra.urdf", "sysid/reference/manifest.json", "hardware/examples/bus.toml"} <= names
+    assert any(n.startswith("integrators/_aba.") and n.endswith(".so") for n in names)  # Pinocchio's ABA for the loops
     work = base / "elsewhere"
     work.mkdir()
     return bin_dir, work

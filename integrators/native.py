@@ -1,0 +1,143 @@
+"""Pinocchio's ABA for the compiled loops: the C interface of ``integrators/_aba.cpp``.
+
+The simulator's kernels are numba code; a rollout that called ``pin.aba`` from Python between
+two kernel calls paid a trip through the interpreter twice per physics step, several times
+what the kernels cost. ``_aba.cpp`` (built with the package against the same
+``libpinocchio_default`` that ``pin`` uses) exposes Pinocchio's own ABA as C functions; numba
+calls :data:`ABA` like any C function, so a whole rollout runs in one compiled loop
+(``integrators.kernels.rollout_loop``, ``batch_rollout``) and ABA is still Pinocchio's: the
+same explicit instantiation as ``pin.aba``, whose accelerations it reproduces bit for bit.
+
+:class:`NativeModel` rebuilds a :class:`~cobra_model.model.RobotModel`'s Pinocchio model on the
+C++ side from its fields (joint types, parents, placements, inertias, armature, gravity);
+:class:`NativeData` is one workspace. Both free their C++ object when collected.
+"""
+from __future__ import annotations
+
+import ctypes
+import importlib.util
+import weakref
+from pathlib import Path
+
+import llvmlite.binding as llvm
+import numpy as np
+import pinocchio  # noqa: F401  (loads libpinocchio_default, which the library links against, before it)
+from numba import types
+
+from cobra_model.model import RobotModel
+
+#: Joint type codes of ``_aba.cpp`` by Pinocchio's joint model name.
+JOINT_CODES = {"JointModelFreeFlyer": 0, "JointModelRX": 1, "JointModelRY": 2, "JointModelRZ": 3,
+               "JointModelRevoluteUnaligned": 4}
+
+
+def _library_path() -> Path:
+    """The built ``integrators._aba`` extension (built by ``pip install``; see ``setup.py``)."""
+    spec = importlib.util.find_spec("integrators._aba")
+    if spec is None or spec.origin is None:
+        raise ImportError("integrators._aba is not built: install the package (make install, or pip install -e .) "
+                          "so that setup.py compiles integrators/_aba.cpp against Pinocchio")
+    return Path(spec.origin)
+
+
+LIBRARY = _library_path()
+llvm.load_library_permanently(str(LIBRARY))  # numba's compiled code resolves cobra_aba by name
+_lib = ctypes.CDLL(str(LIBRARY))
+_I32P = ctypes.POINTER(ctypes.c_int32)
+_F64P = ctypes.POINTER(ctypes.c_double)
+_lib.cobra_model_new.restype = ctypes.c_ssize_t
+_lib.cobra_model_new.argtypes = [ctypes.c_int32, _I32P, _I32P, _F64P, _F64P, _F64P, _F64P, _F64P]
+_lib.cobra_model_free.argtypes = [ctypes.c_ssize_t]
+_lib.cobra_data_new.restype = ctypes.c_ssize_t
+_lib.cobra_data_new.argtypes = [ctypes.c_ssize_t]
+_lib.cobra_data_free.argtypes = [ctypes.c_ssize_t]
+_lib.cobra_aba.restype = ctypes.c_int32
+_lib.cobra_aba.argtypes = [ctypes.c_ssize_t, ctypes.c_ssize_t, _F64P, _F64P, _F64P, _F64P]
+
+#: ``cobra_aba(model, data, q, v, tau, a)`` for numba code: the acceleration (nv,) into ``a``
+#: from ``q`` (nq,), ``v`` (nv,), ``tau`` (nv,) (pass ``array.ctypes``), as ``pin.aba`` in the
+#: LOCAL convention; ``model`` and ``data`` are :attr:`NativeModel.handle` and
+#: :attr:`NativeData.handle`. Returns 0.
+ABA = types.ExternalFunction("cobra_aba", types.int32(
+    types.intp, types.intp, types.CPointer(types.float64), types.CPointer(types.float64),
+    types.CPointer(types.float64), types.CPointer(types.float64)))
+
+
+def _f64(a: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(a, dtype=np.float64)
+
+
+class NativeModel:
+    """The C++ copy of a robot's Pinocchio model, value for value.
+
+    Args:
+        model: the robot; its joints must be a free-flyer root and revolute joints (as
+            :class:`RobotModel` already requires).
+
+    Raises:
+        ValueError: a joint type ``_aba.cpp`` does not build.
+    """
+
+    def __init__(self, model: RobotModel):
+        pm = model.pin_model
+        joints = range(1, pm.njoints)
+        names = [pm.joints[i].shortname() for i in joints]
+        unknown = sorted(set(names) - set(JOINT_CODES))
+        if unknown:
+            raise ValueError(f"the native ABA builds {', '.join(JOINT_CODES)} joints, not {', '.join(unknown)}")
+        code = np.array([JOINT_CODES[n] for n in names], dtype=np.int32)
+        parent = np.array([pm.parents[i] for i in joints], dtype=np.int32)
+        placement = _f64([np.r_[pm.jointPlacements[i].rotation.ravel(), pm.jointPlacements[i].translation]
+                          for i in joints])
+        inertia = _f64([np.r_[pm.inertias[i].mass, pm.inertias[i].lever, _symmetric3(pm.inertias[i].inertia)]
+                        for i in joints])
+        axis = _f64([pm.joints[i].extract().axis if n == "JointModelRevoluteUnaligned" else np.zeros(3)
+                     for i, n in zip(joints, names)])
+        armature, gravity = _f64(pm.armature), _f64(pm.gravity.linear)
+        self.nq, self.nv = pm.nq, pm.nv
+        self.handle = int(_lib.cobra_model_new(
+            len(code), code.ctypes.data_as(_I32P), parent.ctypes.data_as(_I32P), placement.ctypes.data_as(_F64P),
+            inertia.ctypes.data_as(_F64P), axis.ctypes.data_as(_F64P), armature.ctypes.data_as(_F64P),
+            gravity.ctypes.data_as(_F64P)))
+        weakref.finalize(self, _lib.cobra_model_free, self.handle)
+
+
+class NativeData:
+    """One Pinocchio workspace (``pinocchio::Data``) of a :class:`NativeModel`: every rollout
+    running at the same time needs its own. Keeps its model alive."""
+
+    def __init__(self, model: NativeModel):
+        self.model = model
+        self.handle = int(_lib.cobra_data_new(model.handle))
+        weakref.finalize(self, _lib.cobra_data_free, self.handle)
+
+
+def _symmetric3(inertia: np.ndarray) -> np.ndarray:
+    """A symmetric 3x3 inertia in Pinocchio's ``Symmetric3`` order (xx, xy, yy, xz, yz, zz)."""
+    return inertia[[0, 1, 1, 2, 2, 2], [0, 0, 1, 0, 1, 2]]
+
+
+_MODELS: "weakref.WeakKeyDictionary[RobotModel, NativeModel]" = weakref.WeakKeyDictionary()
+
+
+def native_model(model: RobotModel) -> NativeModel:
+    """The :class:`NativeModel` of ``model``, built once per model object (models are immutable
+    and shared: :meth:`RobotModel.with_armature` returns the same object for the same values)."""
+    if model not in _MODELS:
+        _MODELS[model] = NativeModel(model)
+    return _MODELS[model]
+
+
+def aba(data: NativeData, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
+    """The acceleration (nv,) from Python (tests and one-off calls; the loops call :data:`ABA`)."""
+    q, v, tau = _f64(q), _f64(v), _f64(tau)
+    nq, nv = data.model.nq, data.model.nv
+    if q.shape != (nq,) or v.shape != (nv,) or tau.shape != (nv,):
+        raise ValueError(f"q, v, tau must be ({nq},), ({nv},), ({nv},); got {q.shape}, {v.shape}, {tau.shape}")
+    a = np.empty(nv)
+    _lib.cobra_aba(data.model.handle, data.handle, q.ctypes.data_as(_F64P),
+                   v.ctypes.data_as(_F64P), tau.ctypes.data_as(_F64P), a.ctypes.data_as(_F64P))
+    return a
+
+
+__all__ = ["ABA", "LIBRARY", "NativeData", "NativeModel", "aba", "native_model"]

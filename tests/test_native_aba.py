@@ -1,0 +1,116 @@
+"""Pinocchio's ABA behind the C interface the compiled loops call (``integrators.native``) is
+``pin.aba`` bit for bit, and the rollout that calls it from one compiled loop is the plain
+step-by-step rollout bit for bit, on COBRA and on robots this project did not write.
+
+Exact equality, not a tolerance: the C++ model is a field-by-field copy and ABA is the same
+explicit instantiation in ``libpinocchio_default`` that the Python binding runs, so any
+difference is a defect (a field not copied, an inertia summed instead of assigned, another
+code path), and every result measured with the Python loop stays valid.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from cobra_model import ModelParameters, SidewindingGait
+from cobra_model.model import RobotModel
+from integrators import native
+from integrators.simulator import SimSettings, Simulator
+from invariants import double_pendulum, solo, undamped_params
+from sysid.discrepancy.effects import EffectLibrary
+
+#: A two-link arm whose second joint turns about an axis aligned with no coordinate axis
+#: (Pinocchio's JointModelRevoluteUnaligned), on a free-flying base.
+UNALIGNED_URDF = """<?xml version="1.0"?>
+<robot name="tilted">
+  <link name="base"><inertial><mass value="1.0"/>
+    <inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>
+  <link name="upper"><inertial><origin xyz="0 0 -0.1"/><mass value="0.4"/>
+    <inertia ixx="0.002" ixy="0.0001" ixz="0" iyy="0.0015" iyz="0.0002" izz="0.001"/></inertial></link>
+  <link name="lower"><inertial><origin xyz="0.02 0 -0.1"/><mass value="0.3"/>
+    <inertia ixx="0.001" ixy="0" ixz="0.0001" iyy="0.001" iyz="0" izz="0.0005"/></inertial></link>
+  <joint name="shoulder" type="revolute"><parent link="base"/><child link="upper"/>
+    <axis xyz="1 0 0"/><limit lower="-3" upper="3" effort="5" velocity="10"/></joint>
+  <joint name="elbow" type="revolute"><parent link="upper"/><child link="lower"/>
+    <origin xyz="0 0 -0.2" rpy="0.1 0.2 0.3"/><axis xyz="0 0.6 0.8"/>
+    <limit lower="-3" upper="3" effort="5" velocity="10"/></joint>
+</robot>
+"""
+
+
+def _robots(cobra, erd_dir: Path, tmp_path: Path) -> dict[str, RobotModel]:
+    urdf = tmp_path / "tilted.urdf"
+    urdf.write_text(UNALIGNED_URDF)
+    with_effects = EffectLibrary().transform(ModelParameters.nominal(), {"link_mass_error": 0.3})
+    return {
+        "cobra": cobra.with_armature(np.linspace(0.005, 0.02, 11)),
+        "cobra with a payload": Simulator(cobra, with_effects).model,
+        "solo": solo(erd_dir).with_armature(np.full(8, 1e-3)),
+        "double pendulum": double_pendulum(erd_dir),
+        "unaligned axis": RobotModel.from_urdf(urdf, floating=True),
+    }
+
+
+def test_native_aba_is_pin_aba_bit_for_bit(cobra, erd_dir, tmp_path):
+    rng = np.random.default_rng(7)
+    for name, model in _robots(cobra, erd_dir, tmp_path).items():
+        pm = model.pin_model
+        data = native.NativeData(native.native_model(model))
+        reference = pm.createData()
+        for _ in range(20):
+            q = pin.randomConfiguration(pm, -np.ones(pm.nq), np.ones(pm.nq))
+            v, tau = rng.normal(size=pm.nv), 10.0 * rng.normal(size=pm.nv)
+            a = native.aba(data, q, v, tau)
+            assert np.array_equal(a, pin.aba(pm, reference, q, v, tau)), name
+        assert np.abs(a).max() > 0.1, name  # a real acceleration, not zeros on both sides
+
+
+def test_the_native_model_is_built_once_per_model(cobra):
+    assert native.native_model(cobra) is native.native_model(cobra)
+    assert native.native_model(cobra.with_armature(np.full(11, 0.01))) is not native.native_model(cobra)
+
+
+def test_native_aba_names_wrong_shapes(cobra):
+    data = native.NativeData(native.native_model(cobra))
+    with pytest.raises(ValueError, match=r"q, v, tau must be \(18,\), \(17,\), \(17,\)"):
+        native.aba(data, np.zeros(17), np.zeros(17), np.zeros(17))
+
+
+@pytest.mark.parametrize("robot", ["solo", "double pendulum", "unaligned axis"])
+def test_the_compiled_rollout_is_the_single_step_repeated_on_other_robots(cobra, erd_dir, tmp_path, robot):
+    """The compiled loop (ABA called from numba) against ``Simulator.step`` (``pin.aba`` from
+    Python), on Solo standing on its feet, the fixed-base double pendulum and the unaligned
+    joint; COBRA's case is ``test_integrator.test_rollout_is_the_single_step_repeated``."""
+    model = _robots(cobra, erd_dir, tmp_path)[robot]
+    params = undamped_params().with_values(armature=1e-3)
+    settings = SimSettings(dt=5e-4, control_dt=1e-3)
+    sim, stepper = Simulator(model, params, settings), Simulator(model, params, settings)
+    rng = np.random.default_rng(3)
+    q0 = model.configuration(rng.uniform(-0.5, 0.5, model.n_joints))
+    if robot == "solo":
+        q0 = model.configuration(np.tile([0.8, -1.6], 4), np.array([0.0, 0.0, 0.3]))
+    start = sim.state(q0, 0.5 * rng.normal(size=model.nv))
+    table = rng.uniform(-0.3, 0.3, (101, model.n_joints))
+    n = 200
+    tr = sim.rollout(start, table, n * settings.dt, record_every=1)
+    st = start
+    for i in range(n):
+        assert np.array_equal(tr.q[i], st.q) and np.array_equal(tr.v[i], st.v), f"{robot}, step {i}"
+        st = stepper.step(st, table[i // 2])
+    assert np.array_equal(tr.q[n], st.q) and np.array_equal(tr.v[n], st.v)
+    assert np.abs(tr.q[n] - tr.q[0]).max() > 1e-3  # it moved
+
+
+def test_progress_reports_rise_to_one_and_leave_the_rollout_unchanged(cobra):
+    sim = Simulator(cobra)
+    gait = SidewindingGait(0.5)
+    start = sim.rest_state(gait.q_ref(0.0))
+    seen: list[float] = []
+    reported = sim.rollout(start, gait.q_ref, 1.0, record_every=10, progress=seen.append)
+    silent = sim.rollout(start, gait.q_ref, 1.0, record_every=10)
+    assert np.array_equal(reported.q, silent.q) and np.array_equal(reported.current, silent.current)
+    assert 90 <= len(seen) <= 110 and seen[-1] == 1.0
+    assert np.all(np.diff(seen) >= 0) and 0 < seen[0] <= 0.02
