@@ -19,7 +19,7 @@ from numba import njit, prange
 
 from cobra_model.parameters import Parameter
 from cobra_model.servo import PULSES_PER_REV, PWM_FULL_SCALE, SERVO_STALL_TORQUE_NM
-from integrators.native import ABA
+from integrators.native import ABA, MINVERSE, NONLINEAR_EFFECTS
 
 # Indices into the ground parameter array ``ground``.
 G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL, G_CONE, G_ROUND, G_TC = range(11)
@@ -511,6 +511,11 @@ def post_step(q, v, a, scal, floating, q_out, v_out):
 P_STEPS, P_SUBSTEPS, P_RECORD_EVERY, P_INTEGRATE, P_FLOATING = 0, 1, 2, 3, 4
 N_PLAN = 5
 
+#: The contact laws' codes in :func:`rollout_loop`.
+LAW_COMPLIANT, LAW_SOFT_PYRAMID, LAW_SOFT_ELLIPTIC = 0, 1, 2
+LOOP_LAWS: dict[str, int] = {"compliant": LAW_COMPLIANT, "soft_constraint": LAW_SOFT_PYRAMID,
+                             "soft_elliptic": LAW_SOFT_ELLIPTIC}
+
 
 def workspace_size(n_features: int, n_bodies: int) -> int:
     """Length of the flat workspace :func:`rollout_step` takes: contact points ``X`` and forces
@@ -565,23 +570,35 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
 
 
 @njit(cache=True)
-def rollout_loop(start, stop, aba_model, aba_data, plan, q, v, a, goals, servo, torque_on, act, scal, ground,
-                 chain_i, chain_R, chain_f, feat_i, feat_f, tau, work, record):
-    """Steps ``start`` to ``stop - 1`` of a rollout with the compliant ground in one compiled
-    loop: :func:`rollout_step`, then Pinocchio's ABA (:data:`integrators.native.ABA` on the
-    model and workspace handles ``aba_model``, ``aba_data``) into ``a``, the acceleration the
-    next step integrates. The arguments are :func:`rollout_step`'s.
+def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, servo, torque_on, act, scal, ground,
+                 chain_i, chain_R, chain_f, feat_i, feat_f, tau, work, record, minv, nle, body_weight, warm):
+    """Steps ``start`` to ``stop - 1`` of a rollout in one compiled loop: :func:`rollout_step`,
+    then the acceleration ``a`` (nv,) that the next step integrates, by the contact law ``law``
+    (:data:`LOOP_LAWS`): Pinocchio's ABA (:data:`integrators.native.ABA`) for the compliant
+    ground; for a soft-constraint law Pinocchio's ``D^-1`` into ``minv`` (nv, nv) and nonlinear
+    effects into ``nle`` (nv,) (:data:`integrators.native.MINVERSE`, ``NONLINEAR_EFFECTS``),
+    then :func:`soft_contact_acceleration` with the bodies' weights ``body_weight`` and the
+    solver's warm start ``warm``. ``aba_model``, ``aba_data``: the native model and workspace
+    handles. The other arguments are :func:`rollout_step`'s.
 
     Returns ``(status, i)``: 0 and the last step done, or :func:`rollout_step`'s non-zero status
     at step ``i``. The loop ends after step ``plan[P_STEPS]`` (which only integrates and
     records). A caller runs the rollout in chunks to report progress between them.
     """
+    X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
+    floating = plan[P_FLOATING] != 0
     for i in range(start, stop):
         status = rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R,
                               chain_f, feat_i, feat_f, tau, work, record)
         if status != STATUS_OK or i == plan[P_STEPS]:
             return status, i
-        ABA(aba_model, aba_data, q.ctypes, v.ctypes, tau.ctypes, a.ctypes)
+        if law == LAW_COMPLIANT:
+            ABA(aba_model, aba_data, q.ctypes, v.ctypes, tau.ctypes, a.ctypes)
+        else:
+            MINVERSE(aba_model, aba_data, q.ctypes, minv.ctypes)
+            NONLINEAR_EFFECTS(aba_model, aba_data, q.ctypes, v.ctypes, nle.ctypes)
+            soft_contact_acceleration(v, tau, minv, nle, floating, chain_i[:, 0], chain_i[:, 2], feat_i[:, 0], X,
+                                      kin_R, kin_v, ground, law == LAW_SOFT_ELLIPTIC, body_weight, warm, a)
     return STATUS_OK, stop - 1
 
 

@@ -553,22 +553,23 @@ class Simulator:
             n_steps, sub, record_every, momentum is None, self.model.chain.floating)
         act, scal, ground, work = self.act, self.scal, self.ground, self._work
         ci, cR, cf, fi, ff = self._chain_i, self._chain_R, self._chain_f, self._feat_i, self._feat_f
-        pinm, data = self._pin, self._data
         report_every = max(1, n_steps // 100)
-        if momentum is None and self.contact_law == "compliant":
-            # the whole loop compiled, ABA included (integrators.native); chunks only to report progress
+        if momentum is None:
+            # the whole loop compiled, Pinocchio's dynamics included (integrators.native); chunks
+            # only to report progress
             if self._native is None:
                 self._native = native.NativeData(native.native_model(self.model))
-            handles = self._native.model.handle, self._native.handle
+            handles = self._native.model.handle, self._native.handle, K.LOOP_LAWS[self.contact_law]
+            soft = (np.zeros((nv, nv)), np.empty(nv), self.model.reference_weights, self._soft_warm)
             chunk = report_every if progress is not None else n_steps + 1
             for start in range(0, n_steps + 1, chunk):
                 status, i = K.rollout_loop(start, min(start + chunk, n_steps + 1), *handles, plan, q, v, a, goals,
-                                           servo, on, act, scal, ground, ci, cR, cf, fi, ff, tau, work, record)
+                                           servo, on, act, scal, ground, ci, cR, cf, fi, ff, tau, work, record, *soft)
                 if status:
                     self._raise_step(status, i, state.t, q, v)
                 if progress is not None:
                     progress(min(start + chunk, n_steps) / n_steps)
-        else:
+        else:  # the momentum-form step: its fixed-point iteration calls Pinocchio from Python
             kernel = K.rollout_step
             for i in range(n_steps + 1):
                 status = kernel(i, plan, q, v, a, goals, servo, on, act, scal, ground, ci, cR, cf, fi, ff, tau, work,
@@ -577,14 +578,11 @@ class Simulator:
                     self._raise_step(status, i, state.t, q, v)
                 if i == n_steps:
                     break
-                if momentum is None:
-                    a = self._acceleration(pinm, data, q, v, tau)
-                else:
-                    status = self._momentum_step(q, v, tau, q_next, v_next)
-                    if status:
-                        self._raise(status, state.t + i * s.dt, q, v_next)
-                    q, q_next = q_next, q
-                    v, v_next = v_next, v
+                status = self._momentum_step(q, v, tau, q_next, v_next)
+                if status:
+                    self._raise(status, state.t + i * s.dt, q, v_next)
+                q, q_next = q_next, q
+                v, v_next = v_next, v
                 if progress is not None and i % report_every == 0:
                     progress(i / n_steps)
         if progress is not None:

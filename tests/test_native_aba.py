@@ -1,6 +1,7 @@
-"""Pinocchio's ABA behind the C interface the compiled loops call (``integrators.native``) is
-``pin.aba`` bit for bit, and the rollout that calls it from one compiled loop is the plain
-step-by-step rollout bit for bit, on COBRA and on robots this project did not write.
+"""Pinocchio's ABA, inverse mass matrix and nonlinear effects behind the C interface the compiled
+loops call (``integrators.native``) are ``pin.aba``, ``pin.computeMinverse`` and
+``pin.nonLinearEffects`` bit for bit, and the rollout that calls them from one compiled loop is
+the plain step-by-step rollout bit for bit, on COBRA and on robots this project did not write.
 
 Exact equality, not a tolerance: the C++ model is a field-by-field copy and ABA is the same
 explicit instantiation in ``libpinocchio_default`` that the Python binding runs, so any
@@ -54,7 +55,7 @@ def _robots(cobra, erd_dir: Path, tmp_path: Path) -> dict[str, RobotModel]:
     }
 
 
-def test_native_aba_is_pin_aba_bit_for_bit(cobra, erd_dir, tmp_path):
+def test_native_dynamics_are_pinocchios_bit_for_bit(cobra, erd_dir, tmp_path):
     rng = np.random.default_rng(7)
     for name, model in _robots(cobra, erd_dir, tmp_path).items():
         pm = model.pin_model
@@ -65,7 +66,13 @@ def test_native_aba_is_pin_aba_bit_for_bit(cobra, erd_dir, tmp_path):
             v, tau = rng.normal(size=pm.nv), 10.0 * rng.normal(size=pm.nv)
             a = native.aba(data, q, v, tau)
             assert np.array_equal(a, pin.aba(pm, reference, q, v, tau)), name
-        assert np.abs(a).max() > 0.1, name  # a real acceleration, not zeros on both sides
+            minv = native.minverse(data, q)
+            assert np.array_equal(np.triu(minv), np.triu(pin.computeMinverse(pm, reference, q))), name
+            nle = native.nonlinear_effects(data, q, v)
+            assert np.array_equal(nle, pin.nonLinearEffects(pm, reference, q, v)), name
+        assert np.abs(a).max() > 0.1 and np.abs(nle).max() > 0.1, name  # real values, not zeros on both sides
+        D = np.triu(minv) + np.triu(minv, 1).T
+        assert np.allclose(D @ model.mass_matrix(q), np.eye(pm.nv), atol=1e-8), name  # and it is D^-1
 
 
 def test_the_native_model_is_built_once_per_model(cobra):
@@ -79,13 +86,15 @@ def test_native_aba_names_wrong_shapes(cobra):
         native.aba(data, np.zeros(17), np.zeros(17), np.zeros(17))
 
 
-@pytest.mark.parametrize("robot", ["solo", "double pendulum", "unaligned axis"])
-def test_the_compiled_rollout_is_the_single_step_repeated_on_other_robots(cobra, erd_dir, tmp_path, robot):
-    """The compiled loop (ABA called from numba) against ``Simulator.step`` (``pin.aba`` from
-    Python), on Solo standing on its feet, the fixed-base double pendulum and the unaligned
-    joint; COBRA's case is ``test_integrator.test_rollout_is_the_single_step_repeated``."""
+@pytest.mark.parametrize("robot, law", [("solo", "compliant"), ("solo", "soft_elliptic"),
+                                        ("double pendulum", "compliant"), ("unaligned axis", "compliant")])
+def test_the_compiled_rollout_is_the_single_step_repeated_on_other_robots(cobra, erd_dir, tmp_path, robot, law):
+    """The compiled loop (Pinocchio called from numba) against ``Simulator.step`` (Pinocchio
+    from Python), on Solo standing on its feet (under the compliant ground and MuJoCo's soft
+    contact on the elliptic cone), the fixed-base double pendulum and the unaligned joint;
+    COBRA's cases are ``test_integrator.test_rollout_is_the_single_step_repeated``."""
     model = _robots(cobra, erd_dir, tmp_path)[robot]
-    params = undamped_params().with_values(armature=1e-3)
+    params = undamped_params().with_values(armature=1e-3).with_contact_law(law)
     settings = SimSettings(dt=5e-4, control_dt=1e-3)
     sim, stepper = Simulator(model, params, settings), Simulator(model, params, settings)
     rng = np.random.default_rng(3)
