@@ -10,6 +10,9 @@ linearised from the same Dynamixel loop, reading a precomputed command table. Ou
   quick tour);
 - ``simulate_gait`` (what ``cobra simulate`` runs: a run sampled at 100 Hz with tracked bodies);
 - ``simulate_like`` of a 10 s run (what ``cobra compare`` runs);
+- ``Simulator.rollout`` with the ``q_ref`` callable under the soft-constraint laws, MuJoCo's
+  contact on the friction pyramid and on the elliptic cone (what ``cobra simulate --contact``
+  and ``cobra compare`` run with a parameter file fitted under those laws);
 - the batched rollout of the objective (``BatchSimulator``), per environment-step;
 - the momentum-form step (``SimSettings(scheme="momentum")``, bounded energy error), on the
   core's path, for what it costs (no target: it is not the fits' step).
@@ -84,6 +87,8 @@ def main() -> None:
     gait = SidewindingGait(0.5)
     table = gait.q_ref(np.arange(int(DURATION / DT) + 1) * DT)
     sim = Simulator(model)
+    soft = {law: Simulator(model, ModelParameters.nominal().with_contact_law(law))
+            for law in ("soft_constraint", "soft_elliptic")}
     momentum = Simulator(model, settings=SimSettings(scheme="momentum"))
     st = sim.rest_state(gait.q_ref(0.0))
     reference = simulate_gait(gait, DURATION, model=model)
@@ -98,6 +103,8 @@ def main() -> None:
          per_step(lambda: simulate_gait(gait, DURATION, model=model)), 0.5),
         ("simulate_like of a 10 s run (cobra compare)",
          per_step(lambda: simulate_like(reference, model=model)), 0.5),
+        *((f"Simulator.rollout, q_ref callable, record every step, {law} contact law",
+           per_step(lambda s=s: s.rollout(st, gait.q_ref, DURATION)), 0.5) for law, s in soft.items()),
         ("momentum-form step (scheme='momentum'): Simulator.rollout, command table, record every 10th step",
          per_step(lambda: momentum.rollout(st, table, DURATION, record_every=10)), None),
     ]
