@@ -6,7 +6,10 @@ what is this project's own: locating the ground-contact points on the collision 
 evaluating the compliant ground and the actuator, and mapping the contact forces to generalized
 forces ``J^T F``. To do so in one compiled call per step they walk the kinematic tree with the
 joint placements and axes read from the Pinocchio model; ``tests/test_kernels.py`` checks
-positions, velocities and ``J^T F`` against Pinocchio's own frame Jacobians to 1e-12.
+positions, velocities and ``J^T F`` against Pinocchio's own frame Jacobians to 1e-12. A single
+rollout's loop (:func:`rollout_loop`) calls Pinocchio's ABA (or, for the soft-constraint laws,
+its inverse mass matrix and nonlinear effects) through :mod:`integrators.native`, so that the
+whole loop is compiled.
 
 Conventions (Pinocchio's): a floating root has ``q = [p (3), quat x y z w (4), joints]`` and
 ``v = [v_lin (3), omega (3), joint rates]`` with both root velocities expressed in the root's
