@@ -111,7 +111,13 @@ class NativeModel:
             len(code), code.ctypes.data_as(_I32P), parent.ctypes.data_as(_I32P), placement.ctypes.data_as(_F64P),
             inertia.ctypes.data_as(_F64P), axis.ctypes.data_as(_F64P), armature.ctypes.data_as(_F64P),
             gravity.ctypes.data_as(_F64P)))
+        if not self.handle:
+            raise ValueError(f"_aba.cpp did not build the model (joint codes {code.tolist()})")
         weakref.finalize(self, _lib.cobra_model_free, self.handle)
+
+    def __reduce__(self):
+        raise TypeError("a NativeModel points into this process's memory and does not pickle; "
+                        "pickle the RobotModel and call native_model() where it is used")
 
 
 class NativeData:
@@ -122,6 +128,10 @@ class NativeData:
         self.model = model
         self.handle = int(_lib.cobra_data_new(model.handle))
         weakref.finalize(self, _lib.cobra_data_free, self.handle)
+
+    def __reduce__(self):
+        raise TypeError("a NativeData points into this process's memory and does not pickle; make a new one "
+                        "where it is used")
 
 
 def _symmetric3(inertia: np.ndarray) -> np.ndarray:

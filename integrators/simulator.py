@@ -366,6 +366,11 @@ class Simulator:
         self._soft_warm = np.zeros((len(f), 4))  # the soft-constraint solver's last edge forces [N]
         self._native: native.NativeData | None = None  # the compiled loop's ABA workspace, made at its first use
 
+    def __getstate__(self) -> dict:
+        """Pickled without the compiled loop's workspace: it points into this process's memory
+        (the next rollout makes a new one)."""
+        return {**self.__dict__, "_native": None}
+
     def with_gains(self, gains: ServoGains) -> "Simulator":
         """A simulator identical but for the servo gains."""
         return Simulator(self.model, self.params, replace(self.settings, gains=gains))
@@ -560,7 +565,9 @@ class Simulator:
             if self._native is None:
                 self._native = native.NativeData(native.native_model(self.model))
             handles = self._native.model.handle, self._native.handle, K.LOOP_LAWS[self.contact_law]
-            soft = (np.zeros((nv, nv)), np.empty(nv), self.model.reference_weights, self._soft_warm)
+            # the soft-constraint laws' workspace: D^-1, the nonlinear effects, the bodies' weights, warm start
+            weights = self.model.reference_weights if self.contact_law in K.SOFT_LAWS else np.zeros(0)
+            soft = (np.zeros((nv, nv)), np.empty(nv), weights, self._soft_warm)
             chunk = report_every if progress is not None else n_steps + 1
             for start in range(0, n_steps + 1, chunk):
                 status, i = K.rollout_loop(start, min(start + chunk, n_steps + 1), *handles, plan, q, v, a, goals,
@@ -568,7 +575,7 @@ class Simulator:
                 if status:
                     self._raise_step(status, i, state.t, q, v)
                 if progress is not None:
-                    progress(min(start + chunk, n_steps) / n_steps)
+                    progress(min(start + chunk, n_steps) / max(n_steps, 1))
         else:  # the momentum-form step: its fixed-point iteration calls Pinocchio from Python
             kernel = K.rollout_step
             for i in range(n_steps + 1):

@@ -10,6 +10,7 @@ code path), and every result measured with the Python loop stays valid.
 """
 from __future__ import annotations
 
+import pickle
 from pathlib import Path
 
 import numpy as np
@@ -123,3 +124,21 @@ def test_progress_reports_rise_to_one_and_leave_the_rollout_unchanged(cobra):
     assert np.array_equal(reported.q, silent.q) and np.array_equal(reported.current, silent.current)
     assert 90 <= len(seen) <= 110 and seen[-1] == 1.0
     assert np.all(np.diff(seen) >= 0) and 0 < seen[0] <= 0.02
+    seen.clear()
+    assert len(sim.rollout(start, gait.q_ref, 0.0, progress=seen.append).t) == 1 and seen[-1] == 1.0  # no step
+
+
+def test_a_pickled_simulator_rolls_out_alike_and_native_handles_do_not_pickle(cobra):
+    """A simulator that has run (its compiled loop holds a Pinocchio workspace of this process)
+    pickles without it and rolls out the same elsewhere; the handles themselves refuse to
+    pickle instead of carrying a pointer into another process's memory."""
+    sim = Simulator(cobra)
+    gait = SidewindingGait(0.65)
+    start = sim.rest_state(gait.q_ref(0.0))
+    first = sim.rollout(start, gait.q_ref, 0.2)
+    again = pickle.loads(pickle.dumps(sim)).rollout(start, gait.q_ref, 0.2)
+    assert np.array_equal(first.q, again.q)
+    with pytest.raises(TypeError, match="does not pickle"):
+        pickle.dumps(sim._native)
+    with pytest.raises(TypeError, match="does not pickle"):
+        pickle.dumps(native.native_model(cobra))
