@@ -45,6 +45,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/effect_signal.py
 	$(PY) benchmarks/contact_time_constant.py
 	$(PY) benchmarks/contact_law.py
+	$(PY) benchmarks/contact_step.py
 	$(PY) benchmarks/mujoco_fit.py --configs twin,elliptic_soft,stiff --laws soft_constraint,soft_elliptic --channel-weights residual --name mujoco_fit_residual
 	$(PY) benchmarks/headline.py  # the README's headline table from benchmarks/results/
 

@@ -195,6 +195,18 @@ def _contact_law(doc: dict) -> list[tuple[str, str, str]]:
              f"{max(r['joint_rms_no_ground_rad'] for r in doc['rows']) * 1e3:.2f} mrad)", "-")]
 
 
+def _contact_step(doc: dict) -> list[tuple[str, str, str]]:
+    rule = doc["meta"]["rule_steps_per_time_constant"]
+    stiff = {round(r["steps_per_time_constant"]): r for r in doc["meta"]["summary"] if r["config"] == "stiff"}
+    own = {r["config"]: r for r in doc["meta"]["mujoco_own_step"]}
+    cells = "; ".join(f"{n} steps {stiff[n]['joint_over_floor_worst']:.2f}x ({stiff[n]['joint_within_bound']}/"
+                      f"{stiff[n]['runs']} within 1.5x)" for n in sorted(stiff) if n >= 4)
+    return [("our joints against MuJoCo's stiff (2 ms) contact at MuJoCo's values, by our steps per contact time "
+             f"constant (the rule: {rule}): worst joint RMSE over the encoders' floor; MuJoCo's own step error",
+             f"{cells}; MuJoCo's own {own['stiff']['joint_error_worst_rad'] * 1e3:.2f} mrad (stiff), "
+             f"{own['twin']['joint_error_worst_rad'] * 1e3:.2f} mrad (default)", "-")]
+
+
 def _robustness(doc: dict) -> list[tuple[str, str, str]]:
     named = ", ".join(f"{r['label']}: {', '.join(r['named']) or 'none'}" for r in doc["rows"])
     contact = "stiff (2 ms)" if doc["meta"].get("contact") == "stiff" else "default (20 ms)"
@@ -228,6 +240,7 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "mujoco_fit_residual": _mujoco_fit,
     "contact_time_constant": _contact_time_constant,
     "contact_law": _contact_law,
+    "contact_step": _contact_step,
     "coverage": _coverage, "fault_matrix": _faults,
 }
 
