@@ -53,6 +53,8 @@ HEADINGS_RAD = (0.3, 2.0)
 #: Our physics steps [s]; the servo loop keeps its 1 ms period.
 STEPS_S = (1e-3, 5e-4, 2.5e-4, 1.25e-4)
 HOLDOUT_S = 8.0
+#: Height [m] of the fall that measures the step error without ground.
+AIR_HEIGHT_M = 400.0
 #: MuJoCo's own step is compared with a step this many times finer.
 MUJOCO_REFINE = 4
 
@@ -89,6 +91,30 @@ def own_discretisation(options, truth: ModelParameters, heading: float, model: C
         a, b = true_joints(options, plan, truth, model), true_joints(fine, plan, truth, model)
         n = min(len(a), len(b))
         out.append(float(np.mean(np.sqrt(np.mean((a[:n] - b[:n]) ** 2, axis=0)))))
+    return out
+
+
+def step_error_in_the_air(params: ModelParameters, model: CobraModel) -> dict[float, dict[float, float]]:
+    """Our own step error without any ground: the robot falling from :data:`AIR_HEIGHT_M` through
+    each held-out gait for :data:`HOLDOUT_S` s; per step and gait, the mean over joints of the RMS
+    difference [rad] from the same fall at the finest step (after the gait's 1 s smooth start),
+    what the servo, the motor and the joints alone owe to the step."""
+    out: dict[float, dict[float, float]] = {dt: {} for dt in STEPS_S}
+    for f in GAITS_HZ:
+        joints = {}
+        for dt in STEPS_S:
+            sim = Simulator(model, params, SimSettings(dt=dt))
+            rest = sim.rest_state()
+            q = rest.q.copy()
+            q[2] += AIR_HEIGHT_M
+            traj = sim.rollout(sim.state(q), SidewindingGait(f).q_ref, HOLDOUT_S,
+                               record_every=int(round(RECORD_DT_S / dt)))
+            joints[dt] = traj.q[:, -model.n_joints:]
+        finest = joints[min(STEPS_S)]
+        skip = int(round(1.0 / RECORD_DT_S))
+        for dt in STEPS_S:
+            n = min(len(finest), len(joints[dt]))
+            out[dt][f] = float(np.mean(np.sqrt(np.mean((joints[dt][skip:n] - finest[skip:n]) ** 2, axis=0))))
     return out
 
 
@@ -166,6 +192,12 @@ def markdown(rows: list[dict], meta: dict) -> str:
         worst = float(np.hypot(1.0, s["joint_error_worst_rad"] / JOINT_FLOOR_RAD))
         lines.append(f"| {s['config']} | {s['mujoco_dt_s'] * 1e3:g} | {s['steps_per_time_constant']:g} | "
                      f"{s['joint_error_worst_rad'] * 1e3:.2f} ({s['joint_error_median_rad'] * 1e3:.2f}) | {worst:.2f} |")
+    lines += ["", f"Our own step error without any ground (falling from {AIR_HEIGHT_M:g} m through the gait: the servo, "
+              f"the motor and the joints alone), against {min(STEPS_S) * 1e3:g} ms, after the 1 s smooth start:", "",
+              "| our step [ms] | " + " | ".join(f"{g:g} Hz [mrad]" for g in GAITS_HZ) + " |",
+              "|---:|" + "---:|" * len(GAITS_HZ)]
+    for dt, by_gait in meta["step_error_in_the_air_rad"].items():
+        lines.append(f"| {float(dt) * 1e3:g} | " + " | ".join(f"{e * 1e3:.2f}" for e in by_gait.values()) + " |")
     lines += ["", "MuJoCo's contacts: " + "; ".join(f"{c}: {d}" for c, d in meta["configs"].items()) + "."]
     return "\n".join(lines)
 
@@ -214,7 +246,9 @@ def main(argv: list[str] | None = None) -> int:
                              "joint_model_error_rad": model_error(gap.mean_joint_rmse / JOINT_FLOOR_RAD),
                              "joint_step_error_rad": float(np.mean(np.sqrt(np.mean((sim.q - finest.q) ** 2, axis=0)))),
                              "head_final_m": gap.head.final})
-    meta = {"configs": {c: describe(configs[c]) for c in chosen}, "seeds": seeds, "dev_seeds": list(DEV_SEEDS),
+    air = step_error_in_the_air(twin_counterpart(truth).with_contact_law("soft_constraint"), model)
+    meta = {"configs": {c: describe(configs[c]) for c in chosen},
+            "step_error_in_the_air_rad": {f"{dt:g}": {f"{g:g}": e for g, e in by_gait.items()} for dt, by_gait in air.items()}, "seeds": seeds, "dev_seeds": list(DEV_SEEDS),
             "headings_rad": headings, "steps_s": list(STEPS_S), "holdout_s": HOLDOUT_S, "truth": TRUTH,
             "joint_floor_rad": JOINT_FLOOR_RAD, "joint_bound_factor": JOINT_BOUND_FACTOR, "head_bound_m": HEAD_BOUND_M,
             "rule_steps_per_time_constant": STEPS_PER_CONTACT_TIME_CONSTANT, "summary": summary(rows),
