@@ -514,10 +514,11 @@ def post_step(q, v, a, scal, floating, q_out, v_out):
 P_STEPS, P_SUBSTEPS, P_RECORD_EVERY, P_INTEGRATE, P_FLOATING = 0, 1, 2, 3, 4
 N_PLAN = 5
 
-#: The contact laws' codes in :func:`rollout_loop`.
+#: The contact laws' codes in :func:`rollout_loop` (the soft laws' from :data:`SOFT_LAWS`' cone).
 LAW_COMPLIANT, LAW_SOFT_PYRAMID, LAW_SOFT_ELLIPTIC = 0, 1, 2
-LOOP_LAWS: dict[str, int] = {"compliant": LAW_COMPLIANT, "soft_constraint": LAW_SOFT_PYRAMID,
-                             "soft_elliptic": LAW_SOFT_ELLIPTIC}
+LOOP_LAWS: dict[str, int] = {"compliant": LAW_COMPLIANT,
+                             **{law: LAW_SOFT_ELLIPTIC if elliptic else LAW_SOFT_PYRAMID
+                                for law, elliptic in SOFT_LAWS.items()}}
 
 
 def workspace_size(n_features: int, n_bodies: int) -> int:
