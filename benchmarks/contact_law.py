@@ -8,7 +8,8 @@ on its friction pyramid's edges, normal and friction together, solved for all co
 (``ModelParameters.with_contact_law("soft_constraint")``, :func:`integrators.kernels.soft_contact_acceleration`).
 
 Both laws run in our 1 ms step, or the finer one the simulator takes by default for a soft
-contact (at least ``STEPS_PER_CONTACT_TIME_CONSTANT`` steps per time constant: 0.5 ms at 2 ms) (same servos, motors, joints, geometry) at MuJoCo's values
+contact (at least ``STEPS_PER_CONTACT_TIME_CONSTANT`` steps per time constant: 0.5 ms at 2 ms),
+with the same servos, motors, joints and geometry, at MuJoCo's values
 (:func:`sysid.generators.mujoco_recording.twin_counterpart`) and are compared with MuJoCo's twin
 on the same gait from the same rest pose: the final head distance after ``--duration`` s and the
 RMS difference of the joint angles (50 Hz samples after the gait's 1 s smooth start; the
@@ -99,8 +100,8 @@ def main(argv: list[str] | None = None) -> int:
             row = {"gait_hz": f, "time_constant_s": tc, "mujoco_displacement_m": float(np.linalg.norm(q_mj[-1, :2] - q0[:2])),
                    "joint_rms_no_ground_rad": joints_air}
             for law in LAWS:
-                q_law, us, row[f"{law}_step_s"] = ours(model, params.with_values(contact_time_constant=tc).with_contact_law(law), gait,
-                                  duration, q0)
+                law_params = params.with_values(contact_time_constant=tc).with_contact_law(law)
+                q_law, us, row[f"{law}_step_s"] = ours(model, law_params, gait, duration, q0)
                 row[f"{law}_head_to_mujoco_m"], row[f"{law}_joint_rms_rad"] = compare(q_law, q_mj)
                 cost[law].append(us)
             rows.append(row)

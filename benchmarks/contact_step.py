@@ -35,16 +35,14 @@ import numpy as np
 
 from _args import number_list
 from _results import write_results
-from mujoco_fit import GAITS_HZ, HEAD_BOUND_M, HOLDOUT_TURN_RAD, JOINT_BOUND_FACTOR, JOINT_FLOOR_RAD, TRUTH
+from mujoco_fit import GAITS_HZ, HEAD_BOUND_M, JOINT_BOUND_FACTOR, JOINT_FLOOR_RAD, TRUTH, holdout_plan
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
-from integrators import mujoco_twin
 from integrators.simulate import simulate_like
 from integrators.simulator import STEPS_PER_CONTACT_TIME_CONSTANT, SimSettings, Simulator
-from sysid.gap.metrics import compare_runs
-from sysid.generators.dataset import RunPlan
-from sysid.generators.mujoco_recording import (RECORD_DT_S, contact_configurations, describe, record_mujoco, rollout,
-                                               twin_counterpart, twin_options)
+from sysid.gap.metrics import compare_runs, joint_rmse
+from sysid.generators.mujoco_recording import (RECORD_DT_S, contact_configurations, describe, record_mujoco,
+                                               true_trajectory, twin_counterpart, twin_options)
 
 #: Seeds (with heading 0.3 rad) looked at while finding the effect; not reported.
 DEV_SEEDS = (102, 103)
@@ -64,19 +62,14 @@ def held_out_runs(options, truth: ModelParameters, seed: int, heading: float, mo
     alone: same plans and start, their own noise draws (the same draws for the same seed, at
     any MuJoCo step: the logs' sample times do not depend on it)."""
     rng = np.random.default_rng(seed)
-    return [record_mujoco(RunPlan(f"holdout_{f}", f, HOLDOUT_S, (0.5, -0.5), heading + HOLDOUT_TURN_RAD, "holdout"),
-                          options, rng, model, truth) for f in GAITS_HZ]
+    return [record_mujoco(holdout_plan(f, heading, HOLDOUT_S), options, rng, model, truth) for f in GAITS_HZ]
 
 
-def true_joints(options, plan: RunPlan, truth: ModelParameters, model: CobraModel) -> np.ndarray:
-    """MuJoCo's joint angles [rad] of ``plan`` without any measurement (no noise, no encoder
-    rounding), every :data:`RECORD_DT_S` from 0: as :func:`record_mujoco` runs it."""
-    gait = SidewindingGait(plan.freq_hz)
-    q0 = Simulator(model).rest_state(gait.q_ref(np.zeros(1))[0], head_xy=plan.head_xy, heading_rad=plan.heading_rad).q
-    mj_model = mujoco_twin.build(model.urdf_path, options, truth)
-    _, _, q_joints = rollout(mj_model, q0, gait.q_ref, plan.duration_s, record_every=round(RECORD_DT_S / options.timestep),
-                             error_limit_rad=mujoco_twin.servo_error_limit(options))
-    return q_joints
+def mean_joint_rms(a: np.ndarray, b: np.ndarray, skip: int = 0) -> float:
+    """Mean over joints of the RMS difference [rad] of two (N, 11) joint-angle series sampled at
+    the same times from 0, over their common samples from sample ``skip`` on."""
+    n = min(len(a), len(b))
+    return float(np.mean(np.sqrt(np.mean((a[skip:n] - b[skip:n]) ** 2, axis=0))))
 
 
 def own_discretisation(options, truth: ModelParameters, heading: float, model: CobraModel) -> list[float]:
@@ -85,13 +78,9 @@ def own_discretisation(options, truth: ModelParameters, heading: float, model: C
     :data:`MUJOCO_REFINE` times finer one (no measurement noise): how far the data move when the
     engine that made them resolves its contact finer."""
     fine = dataclasses.replace(options, timestep=options.timestep / MUJOCO_REFINE)
-    out = []
-    for f in GAITS_HZ:
-        plan = RunPlan(f"holdout_{f}", f, HOLDOUT_S, (0.5, -0.5), heading + HOLDOUT_TURN_RAD, "holdout")
-        a, b = true_joints(options, plan, truth, model), true_joints(fine, plan, truth, model)
-        n = min(len(a), len(b))
-        out.append(float(np.mean(np.sqrt(np.mean((a[:n] - b[:n]) ** 2, axis=0)))))
-    return out
+    plans = [holdout_plan(f, heading, HOLDOUT_S) for f in GAITS_HZ]
+    return [mean_joint_rms(true_trajectory(plan, options, model, truth)[2],
+                           true_trajectory(plan, fine, model, truth)[2]) for plan in plans]
 
 
 def step_error_in_the_air(params: ModelParameters, model: CobraModel) -> dict[float, dict[float, float]]:
@@ -110,11 +99,8 @@ def step_error_in_the_air(params: ModelParameters, model: CobraModel) -> dict[fl
             traj = sim.rollout(sim.state(q), SidewindingGait(f).q_ref, HOLDOUT_S,
                                record_every=int(round(RECORD_DT_S / dt)))
             joints[dt] = traj.q[:, -model.n_joints:]
-        finest = joints[min(STEPS_S)]
-        skip = int(round(1.0 / RECORD_DT_S))
         for dt in STEPS_S:
-            n = min(len(finest), len(joints[dt]))
-            out[dt][f] = float(np.mean(np.sqrt(np.mean((joints[dt][skip:n] - finest[skip:n]) ** 2, axis=0))))
+            out[dt][f] = mean_joint_rms(joints[dt], joints[min(STEPS_S)], skip=int(round(1.0 / RECORD_DT_S)))
     return out
 
 
@@ -129,7 +115,7 @@ def summary(rows: list[dict]) -> list[dict]:
     out = []
     for config in dict.fromkeys(r["config"] for r in rows):
         for dt in STEPS_S:
-            mine = [r for r in rows if r["config"] == config and r["dt_s"] == dt and "head_final_m" in r]
+            mine = [r for r in rows if r["config"] == config and r["dt_s"] == dt]
             if not mine:
                 continue
             ratio = np.array([r["joint_rmse_over_floor"] for r in mine])
@@ -148,12 +134,12 @@ def summary(rows: list[dict]) -> list[dict]:
     return out
 
 
-def own_summary(rows: list[dict]) -> list[dict]:
-    """MuJoCo's own step error (:func:`own_discretisation`), worst and median per configuration."""
+def own_summary(own_rows: list[dict]) -> list[dict]:
+    """MuJoCo's own step error (:func:`own_discretisation`'s rows), worst and median per configuration."""
     out = []
-    for config in dict.fromkeys(r["config"] for r in rows):
-        mine = [r for r in rows if r["config"] == config and r["dt_s"] is None]
-        err = np.array([r["joint_model_error_rad"] for r in mine])
+    for config in dict.fromkeys(r["config"] for r in own_rows):
+        mine = [r for r in own_rows if r["config"] == config]
+        err = np.array([r["joint_step_error_rad"] for r in mine])
         out.append({"config": config, "mujoco_dt_s": mine[0]["mujoco_dt_s"],
                     "steps_per_time_constant": mine[0]["steps_per_time_constant"], "runs": len(mine),
                     "joint_error_worst_rad": float(err.max()), "joint_error_median_rad": float(np.median(err))})
@@ -161,7 +147,7 @@ def own_summary(rows: list[dict]) -> list[dict]:
 
 
 def markdown(rows: list[dict], meta: dict) -> str:
-    lines = [f"# Physics steps per soft-contact time constant: our joints against MuJoCo's", "",
+    lines = ["# Physics steps per soft-contact time constant: our joints against MuJoCo's", "",
              f"Held-out runs of `mujoco_fit.py` ({HOLDOUT_S:g} s, gaits {', '.join(f'{g:g}' for g in GAITS_HZ)} Hz, "
              f"seeds {', '.join(map(str, meta['seeds']))} (looked at while finding the effect: "
              f"{', '.join(map(str, DEV_SEEDS))}), headings {', '.join(f'{h:g}' for h in meta['headings_rad'])} rad) "
@@ -170,7 +156,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
              f"the rule in use takes at least {meta['rule_steps_per_time_constant']} steps per time constant.", "",
              "| MuJoCo contact | our step [ms] | steps per time constant | joint RMSE / floor: worst (median) | "
              "worst by gait | within the bound | the model's share [mrad]: worst (median) | "
-             f"our own step error [mrad]: worst | final head: worst (median) [m] |",
+             "our own step error [mrad]: worst | final head: worst (median) [m] |",
              "|---|---:|---:|---|---|---:|---|---:|---|"]
     for s in summary(rows):
         by_gait = ", ".join(f"{g} Hz {v:.2f}" for g, v in s["joint_over_floor_worst_by_gait"].items())
@@ -188,7 +174,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
               "contact finer, and the joint RMSE over the floor a model that is exact at the finer step would show.",
               "", "| MuJoCo contact | MuJoCo's step [ms] | steps per time constant | against a finer step [mrad]: "
               "worst (median) | as joint RMSE / floor: worst |", "|---|---:|---:|---|---:|"]
-    for s in own_summary(rows):
+    for s in meta["mujoco_own_step"]:
         worst = float(np.hypot(1.0, s["joint_error_worst_rad"] / JOINT_FLOOR_RAD))
         lines.append(f"| {s['config']} | {s['mujoco_dt_s'] * 1e3:g} | {s['steps_per_time_constant']:g} | "
                      f"{s['joint_error_worst_rad'] * 1e3:.2f} ({s['joint_error_median_rad'] * 1e3:.2f}) | {worst:.2f} |")
@@ -206,20 +192,23 @@ def main(argv: list[str] | None = None) -> int:
     truth = ModelParameters.nominal().with_values(**TRUTH)
     configs = contact_configurations(twin_options(truth))
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--configs", default="twin,stiff", help=f"MuJoCo contacts, of {', '.join(configs)} "
-                                                                "(pyramidal ones: the soft-constraint law is MuJoCo's pyramid)")
+    parser.add_argument("--configs", default="twin,stiff",
+                        help="MuJoCo contacts, pyramidal ones (the soft-constraint law is MuJoCo's pyramid; "
+                             "default twin,stiff)")
     parser.add_argument("--seeds", default=",".join(map(str, EVAL_SEEDS)),
                         help=f"noise seeds (default {','.join(map(str, EVAL_SEEDS))}; {DEV_SEEDS} looked at while "
                              "finding the effect)")
     parser.add_argument("--headings", default=",".join(map(str, HEADINGS_RAD)), help="training headings [rad]")
     args = parser.parse_args(argv)
     chosen = [c for c in args.configs.split(",") if c]
-    if not chosen or any(c not in configs for c in chosen) or any(configs[c].cone != "pyramidal" for c in chosen):
-        parser.error(f"--configs: pyramidal configurations of {', '.join(configs)}, got {args.configs!r}")
+    pyramidal = [c for c, options in configs.items() if options.cone == "pyramidal"]
+    if not chosen or any(c not in pyramidal for c in chosen):
+        parser.error(f"--configs: choose among the pyramidal configurations {', '.join(pyramidal)}, got {args.configs!r}")
     seeds = number_list(parser, "--seeds", args.seeds)
     headings = number_list(parser, "--headings", args.headings, float)
     model = CobraModel.load()
     rows: list[dict] = []
+    own_rows: list[dict] = []
     t0 = time.perf_counter()
     cases = [(c, s, h) for c in chosen for s in seeds for h in headings]
     for k, (config, seed, heading) in enumerate(cases):
@@ -230,10 +219,10 @@ def main(argv: list[str] | None = None) -> int:
               file=sys.stderr, flush=True)
         if seed == seeds[0]:  # no noise: one per heading
             for gait, own in zip(GAITS_HZ, own_discretisation(options, truth, heading, model)):
-                rows.append({"config": config, "seed": None, "heading_rad": heading, "gait_hz": gait, "dt_s": None,
-                             "mujoco_dt_s": options.timestep,
-                             "steps_per_time_constant": options.solref[0] / options.timestep,
-                             "joint_model_error_rad": own})
+                own_rows.append({"config": config, "heading_rad": heading, "gait_hz": gait,
+                                 "mujoco_dt_s": options.timestep,
+                                 "steps_per_time_constant": options.solref[0] / options.timestep,
+                                 "joint_step_error_rad": own})
         for run in held_out_runs(options, truth, seed, heading, model):
             sims = {dt: simulate_like(run, params=params, settings=SimSettings(dt=dt), model=model) for dt in STEPS_S}
             finest = sims[min(STEPS_S)]
@@ -244,15 +233,17 @@ def main(argv: list[str] | None = None) -> int:
                              "joint_rmse_rad": gap.mean_joint_rmse,
                              "joint_rmse_over_floor": gap.mean_joint_rmse / JOINT_FLOOR_RAD,
                              "joint_model_error_rad": model_error(gap.mean_joint_rmse / JOINT_FLOOR_RAD),
-                             "joint_step_error_rad": float(np.mean(np.sqrt(np.mean((sim.q - finest.q) ** 2, axis=0)))),
+                             "joint_step_error_rad": float(np.mean(joint_rmse(finest, sim))),
                              "head_final_m": gap.head.final})
     air = step_error_in_the_air(twin_counterpart(truth).with_contact_law("soft_constraint"), model)
     meta = {"configs": {c: describe(configs[c]) for c in chosen},
-            "step_error_in_the_air_rad": {f"{dt:g}": {f"{g:g}": e for g, e in by_gait.items()} for dt, by_gait in air.items()}, "seeds": seeds, "dev_seeds": list(DEV_SEEDS),
+            "step_error_in_the_air_rad": {f"{dt:g}": {f"{g:g}": e for g, e in by_gait.items()}
+                                          for dt, by_gait in air.items()},
+            "seeds": seeds, "dev_seeds": list(DEV_SEEDS),
             "headings_rad": headings, "steps_s": list(STEPS_S), "holdout_s": HOLDOUT_S, "truth": TRUTH,
             "joint_floor_rad": JOINT_FLOOR_RAD, "joint_bound_factor": JOINT_BOUND_FACTOR, "head_bound_m": HEAD_BOUND_M,
             "rule_steps_per_time_constant": STEPS_PER_CONTACT_TIME_CONSTANT, "summary": summary(rows),
-            "mujoco_own_step": own_summary(rows),
+            "mujoco_own_step": own_summary(own_rows), "mujoco_own_step_rows": own_rows,
             "wall_s": time.perf_counter() - t0}
     md = markdown(rows, meta)
     json_path, md_path = write_results("contact_step", rows, meta, md)

@@ -105,14 +105,19 @@ def mujoco_truth(options: TwinOptions) -> dict[str, float]:
             "contact_time_constant": options.solref[0]}
 
 
+def holdout_plan(freq_hz: float, heading: float, duration_s: float) -> RunPlan:
+    """The held-out run at ``freq_hz`` of a case trained at ``heading`` [rad]: turned by
+    :data:`HOLDOUT_TURN_RAD`, from another start."""
+    return RunPlan(f"holdout_{freq_hz}", freq_hz, duration_s, (0.5, -0.5), heading + HOLDOUT_TURN_RAD, "holdout")
+
+
 def record_case(options: TwinOptions, truth: ModelParameters, seed: int, heading: float, train_s: float,
                 holdout_s: float, model: CobraModel) -> tuple[list[Run], list[Run]]:
     """Three training runs at ``heading`` and three held-out runs turned by HOLDOUT_TURN_RAD."""
     rng = np.random.default_rng(seed)
     train = [record_mujoco(RunPlan(f"train_{f}", f, train_s, (0.0, 0.0), heading, "train"), options, rng, model, truth)
              for f in GAITS_HZ]
-    hold = [record_mujoco(RunPlan(f"holdout_{f}", f, holdout_s, (0.5, -0.5), heading + HOLDOUT_TURN_RAD, "holdout"),
-                          options, rng, model, truth) for f in GAITS_HZ]
+    hold = [record_mujoco(holdout_plan(f, heading, holdout_s), options, rng, model, truth) for f in GAITS_HZ]
     return train, hold
 
 

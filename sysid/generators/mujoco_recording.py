@@ -170,9 +170,46 @@ def rollout_with_torques(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callab
     return np.arange(len(qpos)) * record_every * dt, q, qpos[:, 7:].copy(), torque
 
 
+def true_trajectory(run_plan: RunPlan, options: TwinOptions, model: CobraModel,
+                    params: ModelParameters | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """MuJoCo's run of ``run_plan`` before any measurement: the gait's commands (sent
+    ``options.command_delay`` late, held in encoder readings offset by ``options.encoder_offset``)
+    from the rest pose at the plan's head position and yaw, sampled every :data:`RECORD_DT_S`.
+
+    Args:
+        run_plan, options, model, params: as :func:`record_mujoco`'s.
+
+    Returns:
+        ``(t, q, q_joints, torque)`` of :func:`rollout_with_torques`: the true joint angles,
+        not the encoders' readings.
+
+    Raises:
+        InputError: without the twin's servos or ground. SimulationDiverged: if MuJoCo diverged.
+    """
+    if not options.actuators:
+        raise InputError("options.actuators must be True: a recorded run needs the servos")
+    if not options.ground:
+        raise InputError("options.ground must be True: the robot sidewinds on the ground")
+    gait = SidewindingGait(run_plan.freq_hz)
+    offset, delay = options.encoder_offset, options.command_delay
+
+    def goals(t: np.ndarray) -> np.ndarray:
+        """What the servos hold, as true joint angles: the command sent ``delay`` earlier (the
+        first one before that), less the encoder offset (the loop holds its goal in readings)."""
+        return gait.q_ref(np.maximum(np.asarray(t) - delay, 0.0)) - offset
+
+    q0 = Simulator(model).rest_state(goals(np.zeros(1))[0], head_xy=run_plan.head_xy,
+                                     heading_rad=run_plan.heading_rad).q
+    mj_model = mujoco_twin.build(model.urdf_path, options, params)
+    return rollout_with_torques(mj_model, q0, goals, run_plan.duration_s,
+                                record_every=max(1, round(RECORD_DT_S / options.timestep)),
+                                error_limit_rad=mujoco_twin.servo_error_limit(options))
+
+
 def record_mujoco(run_plan: RunPlan, options: TwinOptions, rng: np.random.Generator, model: CobraModel,
                   params: ModelParameters | None = None, *, log_current: bool = False) -> Run:
-    """Simulate one run in MuJoCo and 'measure' it like the reference dataset.
+    """Simulate one run in MuJoCo (:func:`true_trajectory`) and 'measure' it like the reference
+    dataset.
 
     Args:
         run_plan: gait frequency [Hz], duration [s], initial head (x, y) [m] and yaw [rad].
@@ -192,26 +229,9 @@ def record_mujoco(run_plan: RunPlan, options: TwinOptions, rng: np.random.Genera
         InputError: naming ``options``/``run_plan`` fields that are out of range.
         SimulationDiverged: if MuJoCo diverged.
     """
-    if not options.actuators:
-        raise InputError("options.actuators must be True: a recorded run needs the servos")
-    if not options.ground:
-        raise InputError("options.ground must be True: the robot sidewinds on the ground")
-    gait = SidewindingGait(run_plan.freq_hz)
-    offset, delay = options.encoder_offset, options.command_delay
-
-    def goals(t: np.ndarray) -> np.ndarray:
-        """What the servos hold, as true joint angles: the command sent ``delay`` earlier (the
-        first one before that), less the encoder offset (the loop holds its goal in readings)."""
-        return gait.q_ref(np.maximum(np.asarray(t) - delay, 0.0)) - offset
-
-    q0 = Simulator(model).rest_state(goals(np.zeros(1))[0], head_xy=run_plan.head_xy,
-                                     heading_rad=run_plan.heading_rad).q
-    mj_model = mujoco_twin.build(model.urdf_path, options, params)
-    t, q, q_joints, torque = rollout_with_torques(mj_model, q0, goals, run_plan.duration_s,
-                                                  record_every=max(1, round(RECORD_DT_S / options.timestep)),
-                                                  error_limit_rad=mujoco_twin.servo_error_limit(options))
+    t, q, q_joints, torque = true_trajectory(run_plan, options, model, params)
     rkm = (params or ModelParameters.nominal()).value("motor_km") * SERVO_GEAR_RATIO
-    return measure(t, q, q_joints + offset, run_plan, rng, model, source="mujoco",
+    return measure(t, q, q_joints + options.encoder_offset, run_plan, rng, model, source="mujoco",
                    note=f"MuJoCo twin run ({describe(options)})", current=torque / rkm if log_current else None)
 
 
