@@ -9,7 +9,8 @@ joint placements and axes read from the Pinocchio model; ``tests/test_kernels.py
 positions, velocities and ``J^T F`` against Pinocchio's own frame Jacobians to 1e-12. A single
 rollout's loop (:func:`rollout_loop`) calls Pinocchio's ABA (or, for the soft-constraint laws,
 its inverse mass matrix and nonlinear effects) through :mod:`integrators.native`, so that the
-whole loop is compiled.
+whole loop is compiled; a batch (:func:`batch_rollout_loop`) runs that loop for each of its
+environments on the worker threads.
 
 Conventions (Pinocchio's): a floating root has ``q = [p (3), quat x y z w (4), joints]`` and
 ``v = [v_lin (3), omega (3), joint rates]`` with both root velocities expressed in the root's
@@ -606,6 +607,34 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
     return STATUS_OK, stop - 1
 
 
+@njit(cache=True, parallel=True)
+def batch_rollout_loop(aba_models, aba_data, law, plan, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
+                       ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, NLE, WEIGHT, WARM,
+                       status, failed_at):
+    """Every environment ``e`` of a batch (rows of the arrays) through a whole rollout, one
+    environment per thread at a time: :func:`rollout_loop` on ``Q[e]``, ``V[e]``, ... with the
+    goal sequence ``goals[:, goal_index[e]]`` (n_ticks, G, nj) and the native handles
+    ``aba_models[e]``, ``aba_data[e]`` (one workspace per environment), recording into
+    ``RECORD[e]`` (n_rec, nq + nv + nj). The environments are independent, so each runs its
+    whole rollout without meeting the others at every step (no parallel region per step, no
+    trip through the interpreter per step); each one's arithmetic is :func:`rollout_loop`'s.
+
+    ``status[e]``, ``failed_at[e]``: :func:`rollout_loop`'s status and the step it stopped at
+    (0 and the last step when it finished); an environment that fails stops there, its state
+    and workspace left as they were at the failure.
+
+    It lives in this file because numba's on-disk cache of a function is invalidated only by
+    changes to the file that defines it: a batch kernel in another module kept running an old,
+    inlined copy of these kernels after they were edited.
+    """
+    for e in prange(Q.shape[0]):
+        s, i = rollout_loop(0, plan[P_STEPS] + 1, aba_models[e], aba_data[e], law, plan, Q[e], V[e], A[e],
+                            goals[:, goal_index[e]], SERVO[e], torque_on, act[e], scal, ground[e], chain_i, chain_R,
+                            chain_f, feat_i, feat_f, TAU[e], WORK[e], RECORD[e], MINV[e], NLE[e], WEIGHT[e], WARM[e])
+        status[e] = s
+        failed_at[e] = i
+
+
 #: MuJoCo's default constraint impedance ``solimp`` (d0, d_width, width [m], midpoint, power) and
 #: ``solref`` damping ratio: the soft-constraint contact law's fixed shape (:func:`soft_contact_acceleration`).
 SOFT_SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)
@@ -1072,36 +1101,3 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
             acc += W[j, col] * f[j]
         a_out[col] += acc
     return iterations
-
-
-@njit(cache=True, parallel=True)
-def batch_step(i, last, control, Q, V, A, goals, goal_index, integ, prev_err, duty, on, act, scal, ground, floating,
-               chain_i, chain_R, chain_f, feat_i, feat_f, TAU, current, X, F, KR, KV, status):
-    """Step ``i`` of a batch's rollout for every environment ``e`` (rows of the state arrays), in
-    one parallel region: when ``i > 0``, :func:`post_step` finishes step ``i - 1`` in place on
-    ``Q[e]``, ``V[e]`` with its acceleration ``A[e]``; unless ``last``, :func:`pre_step` then
-    computes step ``i``'s forces into ``TAU[e]`` (a servo tick when ``control``). ``status[e]``
-    is the first non-zero status of the two (0 when both pass).
-
-    The batch kernels live in this file because numba's on-disk cache of a function is
-    invalidated only by changes to the file that defines it: a batch kernel in another module
-    kept running an old, inlined copy of these kernels after they were edited.
-    """
-    for e in prange(Q.shape[0]):
-        s = STATUS_OK
-        if i > 0:
-            s = post_step(Q[e], V[e], A[e], scal, floating, Q[e], V[e])
-        if s == STATUS_OK and not last:
-            s = pre_step(control, Q[e], V[e], goals[goal_index[e]], integ[e], prev_err[e], duty[e], on, act[e],
-                         scal, ground[e], floating, chain_i, chain_R, chain_f, feat_i, feat_f, TAU[e],
-                         current[e], X[e], F[e], KR[e], KV[e])
-        status[e] = s
-
-
-@njit(cache=True, parallel=True)
-def batch_soft_contact_acceleration(V, TAU, MINV, NLE, floating, parents, vidx, f_body, X, KR, KV, ground, elliptic,
-                                    WEIGHT, WARM, A):
-    """:func:`soft_contact_acceleration` for every environment ``e`` of a batch (rows)."""
-    for e in prange(V.shape[0]):
-        soft_contact_acceleration(V[e], TAU[e], MINV[e], NLE[e], floating, parents, vidx, f_body, X[e], KR[e], KV[e],
-                                  ground[e], elliptic, WEIGHT[e], WARM[e], A[e])
