@@ -258,6 +258,8 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   "twenty-second stop").
 #: - A torque limit's profile of the unbent model spans 0.4-0.9 of the demand (was 0.6-0.9;
 #:   ``sysid.discrepancy.diagnose.DEMAND_PROFILE_FRACTIONS``, CHANGELOG "twenty-second stop").
+#: - A batch runs each environment through the single rollout's compiled loop (CHANGELOG
+#:   "twenty-sixth stop"): the last bits of every batched fit and diagnosis, and their wall times.
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -273,6 +275,13 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
       "mujoco_robustness_stiff", "mujoco_robustness_stiff_current", "mujoco_robustness_soft_constraint")),
     # single rollouts in one compiled loop (results bit for bit the same; wall times and per-step costs shorter)
     ("2026-11-27T03:58", "66f05b2", "wall times and step costs of single rollouts", ("diagnose_accuracy", "contact_law")),
+    # each environment of a batch through its whole rollout on a worker thread: batches equal single
+    # rollouts bit for bit (the last bits of every fit and diagnosis move), evaluations of small batches faster
+    ("2026-11-27T10:26", "4bdd0be", "batched rollouts' last bits and wall times",
+     ("fit_speed", "diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint",
+      "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness",
+      "mujoco_robustness_current", "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff",
+      "mujoco_robustness_stiff_current", "mujoco_fit_residual", "coverage")),
 )
 
 
