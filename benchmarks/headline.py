@@ -277,7 +277,7 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-27T03:58", "66f05b2", "wall times and step costs of single rollouts", ("diagnose_accuracy", "contact_law")),
     # each environment of a batch through its whole rollout on a worker thread: batches equal single
     # rollouts bit for bit (the last bits of every fit and diagnosis move), evaluations of small batches faster
-    ("2026-11-27T10:26", "4bdd0be", "batched rollouts' last bits and wall times",
+    ("2026-11-27T10:26", "d8303bc", "batched rollouts' last bits and wall times",
      ("fit_speed", "diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint",
       "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness",
       "mujoco_robustness_current", "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff",

@@ -20,11 +20,11 @@ from cobra_model import design
 from cobra_model.parameters import ModelParameters
 from integrators.simulate import simulate_like
 from sysid.generators.dataset import RunPlan
-from sysid.identification.contact_choice import LAW_FREE, choose_contact_law, fit_from_shapes
+from sysid.identification.contact_choice import choose_contact_law
 from sysid.identification.lsq import fit_lsq
 from sysid.gap.metrics import compare_runs
 from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_options
-from sysid.identification.objective import SENSOR_NOISE, Objective, Weights
+from sysid.identification.objective import SENSOR_NOISE
 
 pytestmark = pytest.mark.slow
 mujoco = pytest.importorskip("mujoco")
@@ -76,22 +76,15 @@ def case(cobra):
 
 @pytest.fixture(scope="module")
 def stiff_case(cobra):
-    train, hold, _ = runs_of(cobra, stiff_contact)
-    start = ModelParameters.nominal().with_frozen(free=FREE)
-    result = fit(Objective(train, start, Weights()))
-    return result, gaps_of(hold, {"nominal": start, "fitted": result.params})
-
-
-@pytest.fixture(scope="module")
-def stiff_soft_case(cobra):
-    """MuJoCo's stiff contact (2 ms) fitted with the soft-constraint law from capsule ends (MuJoCo's
-    shape; the search over shapes is the default case's) on a soft (20 ms, nominal) and the
-    stiffest (2 ms) ground, both screened on the first 1.5 s and the lower fitted on the whole runs."""
-    train, hold, _ = runs_of(cobra, stiff_contact)
-    start = ModelParameters.nominal().with_contact_law("soft_constraint").with_frozen(free=LAW_FREE["soft_constraint"])
-    shapes = fit_from_shapes(Objective(train, start, Weights()), fit, rounding_starts=(design.MODULE_RADIUS_M,),
-                             whole_run_fits=1)
-    return shapes, gaps_of(hold, {"fitted": shapes.best.params})
+    """On MuJoCo's stiff contact (2 ms): the compliant and the soft-constraint (pyramid) laws fitted
+    from every shape of the ends (and, for the soft law, a soft and the stiffest ground), each
+    start screened on the first 1.5 s and only the lowest fitted on the whole runs; one law chosen
+    on three validation runs, as in ``case``."""
+    train, hold, options = runs_of(cobra, stiff_contact)
+    valid = record(cobra, options, np.random.default_rng(5 + 10_000), "v", 3.0, (-0.5, 0.5), 0.8)
+    choice = choose_contact_law(train, valid, ModelParameters.nominal(), laws=("compliant", "soft_constraint"),
+                                fit=fit, whole_run_fits=1)
+    return choice, gaps_of(hold, {f.law: f.fit.params for f in choice.fits})
 
 
 @pytest.fixture(scope="module")
@@ -162,45 +155,59 @@ def test_held_out_head_error_within_5_cm_on_every_gait(case):
 
 
 def test_on_mujocos_stiff_contact_the_held_out_head_error_is_within_5_cm(stiff_case):
-    """Issue 16's bound where our ground can express MuJoCo's contact (2 ms time constant).
+    """Issue 16's bound on MuJoCo's stiff contact (2 ms time constant), with the law chosen on
+    validation runs: the soft-constraint law, whose held-out heads were measured 0.63 / 0.62 /
+    0.52 cm at 0.35 / 0.5 / 0.65 Hz (nominal model: 5-25 cm).
 
-    Measured 0.6 / 2.1 / 4.0 cm at 0.35 / 0.5 / 0.65 Hz on one machine (nominal model: 5-25 cm); over 36 cases
-    of benchmarks/mujoco_fit.py (other seeds, both headings, two cones) 34 within 5 cm, worst 5.2 cm.
-    """
-    fit, gaps = stiff_case
-    heads = [g["head_final_error_m"] for g in gaps["fitted"]]
-    assert max(heads) <= 0.05, heads
+    The compliant law is not chosen here, and its held-out error is not a claim: its fit stops
+    where no step descends (``NO_DESCENT``) with joints 2-2.5 times the encoders' floor, and where
+    that is moves with the runs' last bits (1.3 / 3.1 / 4.7 cm from three shapes, 0.8 / 3.1 /
+    5.9 cm from the sharp ends alone; 0.6 / 2.1 / 4.0 cm from the sharp ends with the batch of
+    before d8303bc, whose last bits differed by about 1e-13)."""
+    choice, gaps = stiff_case
+    assert choice.chosen == "soft_constraint", choice.to_json()
+    heads = {law: [g["head_final_error_m"] for g in gaps[law]] for law in gaps}
+    assert max(heads["soft_constraint"]) <= 0.05, heads
+    assert max(heads["soft_constraint"]) < max(heads["compliant"]), heads
+
+
+def test_on_mujocos_stiff_contact_the_compliant_law_finds_the_shapes_and_its_stiffness_bound(stiff_case):
+    """What the compliant law can say of MuJoCo's stiff contact: the ends' shapes, the sliding
+    friction, and that the ground is stiffer than the law's stiffest spring."""
+    choice, _ = stiff_case
+    fit = next(f.fit for f in choice.fits if f.law == "compliant")
+    # measured: cone 0.93, rounding 0.037 of 0.045 m
     assert fit.params.friction_cone > 0.6 and fit.params.contact_rounding > 0.5 * design.MODULE_RADIUS_M
-    # MuJoCo's sliding friction 0.24. The Coulomb level trades with the Stribeck terms (v_s ends
-    # on its bound), so its value moves with the rounding of the runs: measured 0.226 on one
-    # machine, 0.175 on another (AMD EPYC), whose 95 % interval 0.10-0.25 holds MuJoCo's value.
-    # Asserted: the interval holds it and is no wider than +-0.1.
+    # MuJoCo's sliding friction 0.24. The Coulomb level trades with the Stribeck terms, so its value
+    # moves with the rounding of the runs: measured 0.226 and 0.246 on one machine, 0.175 on
+    # another (AMD EPYC), whose 95 % interval 0.10-0.25 holds MuJoCo's value. Asserted: the
+    # interval holds it and is no wider than +-0.1.
     mu_c = next(r for r in fit.report if r.name == "mu_c")
     assert mu_c.ci_low <= 0.24 <= mu_c.ci_high and mu_c.ci_high - mu_c.ci_low <= 0.2, mu_c
     # MuJoCo carries a sustained load almost rigidly: the ground stiffness ends on its bound, and says so
     assert "k1" in {r.name for r in fit.report if r.at_bound}
 
 
-def test_on_mujocos_stiff_contact_the_soft_law_starts_on_a_stiff_ground_and_finds_it(stiff_soft_case):
+def test_on_mujocos_stiff_contact_the_soft_law_starts_on_a_stiff_ground_and_finds_it(stiff_case):
     """A fit of the soft law from MuJoCo's default 20 ms alone stops at 8-10 ms on this
     configuration (the cost along the time constant is rough on a stiff ground; on these runs
-    10.2 ms, held-out joints 1.07-1.45 mrad, 2.4-3.3 times the encoders' floor). The start on the
-    stiffest ground screens lower on the first 1.5 s (measured 0.90 against 9.7), is the one
-    fitted on the whole runs, and ends near MuJoCo's values (measured: time constant 2.6 ms,
-    damping 0.163, ``mu_c`` 0.2406, rounding 0.0448 m), with held-out heads within 5 cm
-    (0.5-0.6 cm) and joints at 0.68 / 0.60 / 0.66 mrad at 0.35 / 0.5 / 0.65 Hz from these 3 s
-    training runs (issue 16's bar, 1.5x the encoders' floor, is 0.66 mrad; the benchmark's 6 s
-    runs report it). Asserted: within twice the floor, which the soft ground's basin does not
-    meet."""
-    shapes, gaps = stiff_soft_case
-    soft, stiff = sorted(shapes.starts, key=lambda s: -s.values["contact_time_constant"])
-    assert stiff.values["contact_time_constant"] == 0.002 and stiff.screen_cost < soft.screen_cost, shapes.starts
-    assert stiff.cost is not None and soft.cost is None
-    fitted = shapes.best.params
+    10.2 ms, held-out joints 1.07-1.45 mrad, 2.4-3.3 times the encoders' floor). Every start on
+    the stiffest ground screens lower on the first 1.5 s than every start on the soft one
+    (measured 0.90-4.7 against 8.6-9.7); the lowest, capsule ends, is the one fitted on the whole
+    runs, and ends near MuJoCo's values (measured: time constant 2.6 ms, damping 0.163, ``mu_c``
+    0.2406, rounding 0.0448 m), with joints at 0.68 / 0.60 / 0.66 mrad at 0.35 / 0.5 / 0.65 Hz
+    from these 3 s training runs (issue 16's bar, 1.5x the encoders' floor, is 0.66 mrad; the
+    benchmark's 6 s runs report it). Asserted: within twice the floor, which the soft ground's
+    basin does not meet."""
+    choice, gaps = stiff_case
+    law = next(f for f in choice.fits if f.law == "soft_constraint")
+    stiff = [s for s in law.starts if s.values["contact_time_constant"] == 0.002]
+    soft = [s for s in law.starts if s.values["contact_time_constant"] != 0.002]
+    assert max(s.screen_cost for s in stiff) < min(s.screen_cost for s in soft), law.starts
+    assert [s.cost is not None for s in law.starts].count(True) == 1 and all(s.cost is None for s in soft)
+    fitted = law.fit.params
     assert fitted.contact_time_constant <= 0.004, fitted          # MuJoCo's solref[0] 0.002 s
     assert abs(fitted.joint_damping - 0.16) <= 0.016 and abs(fitted.mu_c - 0.24) <= 0.024, fitted
     assert fitted.contact_rounding > 0.9 * design.MODULE_RADIUS_M  # MuJoCo's capsule ends
-    heads = [g["head_final_error_m"] for g in gaps["fitted"]]
-    joints = [g["joint_rmse_rad"]["mean"] for g in gaps["fitted"]]
-    assert max(heads) <= 0.05, heads
+    joints = [g["joint_rmse_rad"]["mean"] for g in gaps["soft_constraint"]]
     assert max(joints) <= 2 * SENSOR_NOISE["joints"], joints
