@@ -259,7 +259,7 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #: - A torque limit's profile of the unbent model spans 0.4-0.9 of the demand (was 0.6-0.9;
 #:   ``sysid.discrepancy.diagnose.DEMAND_PROFILE_FRACTIONS``, CHANGELOG "twenty-second stop").
 #: - A batch runs each environment through the single rollout's compiled loop (CHANGELOG
-#:   "twenty-sixth stop"): the last bits of every batched fit and diagnosis, and their wall times.
+#:   "twenty-seventh stop"): the last bits of every batched fit and diagnosis, and their wall times.
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),

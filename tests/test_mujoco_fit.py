@@ -50,6 +50,11 @@ def runs_of(cobra, options_of):
             options)
 
 
+def validation_runs(cobra, options):
+    """Three 3 s validation runs at heading 0.8 rad with their own noise: what chooses the law."""
+    return record(cobra, options, np.random.default_rng(5 + 10_000), "v", 3.0, (-0.5, 0.5), 0.8)
+
+
 def fit(objective):
     return fit_lsq(objective, horizons_s=(1.5,), max_iterations=8)
 
@@ -66,7 +71,7 @@ def case(cobra):
     left to ``elliptic_case``, to ``benchmarks/mujoco_fit.py``, which fits all three (two keep this
     test short), and to ``tests/test_soft_contact.py`` (the law against MuJoCo's elliptic cone)."""
     train, hold, options = runs_of(cobra, lambda twin: twin)
-    valid = record(cobra, options, np.random.default_rng(5 + 10_000), "v", 3.0, (-0.5, 0.5), 0.8)
+    valid = validation_runs(cobra, options)
     start = ModelParameters.nominal()
     choice = choose_contact_law(train, valid, start, laws=("compliant", "soft_constraint"), fit=fit)
     fits = {f.law: f.fit for f in choice.fits}
@@ -81,7 +86,7 @@ def stiff_case(cobra):
     start screened on the first 1.5 s and only the lowest fitted on the whole runs; one law chosen
     on three validation runs, as in ``case``."""
     train, hold, options = runs_of(cobra, stiff_contact)
-    valid = record(cobra, options, np.random.default_rng(5 + 10_000), "v", 3.0, (-0.5, 0.5), 0.8)
+    valid = validation_runs(cobra, options)
     choice = choose_contact_law(train, valid, ModelParameters.nominal(), laws=("compliant", "soft_constraint"),
                                 fit=fit, whole_run_fits=1)
     return choice, gaps_of(hold, {f.law: f.fit.params for f in choice.fits})
@@ -95,7 +100,7 @@ def elliptic_case(cobra):
     ends' shape is the default case's) and goes on to the whole runs from the better of its soft
     and stiff ground's screens, which keeps this test to two whole-run fits."""
     train, hold, options = runs_of(cobra, lambda twin: dataclasses.replace(twin, cone="elliptic", solref=(0.04, 1.0)))
-    valid = record(cobra, options, np.random.default_rng(5 + 10_000), "v", 3.0, (-0.5, 0.5), 0.8)
+    valid = validation_runs(cobra, options)
     choice = choose_contact_law(train, valid, ModelParameters.nominal(), laws=("soft_constraint", "soft_elliptic"),
                                 rounding_starts=(design.MODULE_RADIUS_M,), fit=fit, whole_run_fits=1)
     return choice, gaps_of(hold, {f.law: f.fit.params for f in choice.fits})
