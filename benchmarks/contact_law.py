@@ -8,7 +8,7 @@ on its friction pyramid's edges, normal and friction together, solved for all co
 (``ModelParameters.with_contact_law("soft_constraint")``, :func:`integrators.kernels.soft_contact_acceleration`).
 
 Both laws run in our 1 ms step, or the finer one the simulator takes by default for a soft
-contact (at least ``STEPS_PER_CONTACT_TIME_CONSTANT`` steps per time constant: 0.5 ms at 2 ms),
+contact (at least ``STEPS_PER_CONTACT_TIME_CONSTANT`` steps per time constant: 0.25 ms at 2 ms),
 with the same servos, motors, joints and geometry, at MuJoCo's values
 (:func:`sysid.generators.mujoco_recording.twin_counterpart`) and are compared with MuJoCo's twin
 on the same gait from the same rest pose: the final head distance after ``--duration`` s and the

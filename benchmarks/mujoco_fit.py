@@ -182,6 +182,12 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
     return rows
 
 
+def steps_rule(meta: dict) -> int:
+    """The steps per soft-contact time constant the results in ``meta`` were measured with (the
+    files written before the rule was recorded: four, the rule of then)."""
+    return meta.get("steps_per_contact_time_constant", 4)
+
+
 def markdown(rows: list[dict], meta: dict) -> str:
     """The per-gait table, the pass counts and the interval coverage."""
     starts = sorted({s["contact_rounding"] for f in rows[0]["choice"]["fits"] for s in f["starts"]})
@@ -204,7 +210,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
                 f"(each start screened on the first {SCREEN_HORIZON_S:g} s, the {WHOLE_RUN_FITS} lowest fitted on "
                 f"the whole runs)" if stiffness else "") + " (the lowest training cost kept), "
              f"the law with the lower cost on three validation runs chosen{refit}; physics step 1 ms, or the "
-             f"fraction of it that gives a fitted soft contact {STEPS_PER_CONTACT_TIME_CONSTANT} steps per time "
+             f"fraction of it that gives a fitted soft contact {steps_rule(meta)} steps per time "
              f"constant{chosen_steps}. Bounds: held-out final head error "
              f"<= {HEAD_BOUND_M * 100:g} cm, joint RMSE <= {JOINT_BOUND_FACTOR:g} x floor "
              f"({JOINT_FLOOR_RAD * 1e3:.3f} mrad).", "",
@@ -299,7 +305,9 @@ def main(argv: list[str] | None = None) -> int:
                 "iterations_per_stage": args.iterations, "budget_s": args.budget,
                 "channel_weights": args.channel_weights,
                 "joint_floor_rad": JOINT_FLOOR_RAD, "head_bound_m": HEAD_BOUND_M,
-                "joint_bound_factor": JOINT_BOUND_FACTOR, "cases_done": len(rows) // len(GAITS_HZ),
+                "joint_bound_factor": JOINT_BOUND_FACTOR,
+                "steps_per_contact_time_constant": STEPS_PER_CONTACT_TIME_CONSTANT,
+                "cases_done": len(rows) // len(GAITS_HZ),
                 "cases": len(cases), "wall_s": time.perf_counter() - t_all}
         md = markdown(rows, meta)
         return write_results(args.name, rows, meta, md), md

@@ -12,7 +12,7 @@ from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.run_files import read_run, write_run
 from integrators.simulate import simulate_gait, simulate_like
-from integrators.simulator import SCHEMES, SimSettings, Simulator, contact_resolved
+from integrators.simulator import SCHEMES, STEPS_PER_CONTACT_TIME_CONSTANT, SimSettings, Simulator, contact_resolved
 from sysid.discrepancy.effects import EffectLibrary, parse_effects
 
 
@@ -28,7 +28,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="reproduce this run: its initial pose and q_ref columns (ignores --freq/--duration)")
     p.add_argument("--dt", type=float, default=None,
                    help="physics step [s] (default 0.001, or the fraction of the servo period that gives a "
-                        "soft contact at least 4 steps per time constant)")
+                        f"soft contact at least {STEPS_PER_CONTACT_TIME_CONSTANT} steps per time constant)")
     p.add_argument("--control-dt", type=float, default=None,
                    help="servo loop period [s], a multiple of --dt (default = --dt)")
     p.add_argument("--scheme", choices=SCHEMES, default="velocity",

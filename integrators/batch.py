@@ -22,7 +22,7 @@ from cobra_model.model import RobotModel
 from cobra_model.parameters import ModelParameters
 from integrators import kernels as K
 from integrators import native
-from integrators.simulator import SimSettings, SimState, SimulationDiverged, Simulator
+from integrators.simulator import SimSettings, SimState, SimulationDiverged, Simulator, contact_resolved
 
 #: What a batch does when an environment diverges (:meth:`BatchSimulator.rollout`).
 Divergence = Literal["raise", "mask"]
@@ -34,7 +34,10 @@ class BatchSimulator:
     Args:
         model: the robot.
         params: one parameter set per environment.
-        settings: numerical settings shared by all.
+        settings: numerical settings shared by all; by default the finest step that any
+            environment's soft contact needs (:func:`integrators.simulator.contact_resolved`;
+            1 ms for the compliant ground), so that no environment steps coarser than it would
+            alone.
         threads: worker threads (environments run at the same time).
     """
 
@@ -50,6 +53,8 @@ class BatchSimulator:
             raise InputError(f"a batch steps one contact law; the parameter sets have {', '.join(laws)}")
         # environments given the same parameter set share its simulator (an objective passes one
         # parameter set per run); the batch reads their parameters, the states are its own
+        if settings is None:
+            settings = min((contact_resolved(SimSettings(), p) for p in params), key=lambda s: s.dt)
         made: dict[int, Simulator] = {}
         for p in params:
             if id(p) not in made:

@@ -210,7 +210,7 @@ class SimSettings:
 
 
 #: Physics steps per soft-contact time constant at the least (:func:`contact_resolved`).
-STEPS_PER_CONTACT_TIME_CONSTANT = 4
+STEPS_PER_CONTACT_TIME_CONSTANT = 8
 
 
 def contact_resolved(settings: SimSettings, params: ModelParameters) -> SimSettings:
@@ -226,12 +226,12 @@ def contact_resolved(settings: SimSettings, params: ModelParameters) -> SimSetti
     lowest, its stability limit) the contact is removed in about one step: at MuJoCo's values
     against MuJoCo's 2 ms contact (its 0.25 ms steps), our joints are 0.57-1.60 mrad off with
     1 ms steps, 0.28-0.54 mrad with 0.5 ms (N = 4) and 0.27-0.40 mrad with 0.25 ms (N = 8; the
-    encoders' rounding floor is 0.44 mrad). Four steps per time constant bring that
-    discretisation error to about the floor at twice the cost; MuJoCo's default 20 ms contact
-    needs no change at 1 ms. Not below it everywhere: on the held-out runs of
+    encoders' rounding floor is 0.44 mrad). On the held-out runs of
     ``benchmarks/mujoco_fit.py`` at MuJoCo's values (``benchmarks/contact_step.py``) four steps
     leave the 0.65 Hz gaits' joints up to 1.84 times the floor from MuJoCo's, eight 1.34 times
-    (a rule of eight would move every soft-law result and double a stiff contact's cost).
+    and sixteen 1.29 times: eight is where halving the step stops paying (what is left is the
+    two engines' other differences), at four times the 1 ms step's cost for a 2 ms contact.
+    MuJoCo's default 20 ms contact needs no change at 1 ms.
     """
     if params.contact_law not in K.SOFT_LAWS:
         return settings

@@ -67,6 +67,30 @@ def test_nonnegative_qp_solves_the_lcp_exactly():
         assert np.all(start >= 0) and np.all(w >= -1e-9) and abs(start @ w) < 1e-9
 
 
+def test_cholesky_solves_the_contact_solvers_systems():
+    """The contact solvers' own Cholesky against LAPACK on positive definite systems of their
+    sizes (a few rows to a 17-coordinate mass matrix and beyond), conditioned as the pyramid's
+    ``A + R`` is (condition numbers up to about 1e8); only the lower triangle is read, and a
+    matrix that is not positive definite gives NaN, which a rollout reports as a divergence."""
+    rng = np.random.default_rng(5)
+    for m in (1, 2, 4, 7, 12, 17, 28, 50):
+        B = rng.normal(size=(m, m))
+        M = B @ B.T + 1e-8 * m * np.eye(m)
+        b = rng.normal(size=m)
+        A = np.tril(M) + np.triu(np.full((m, m), 1e9), 1)      # garbage above the diagonal
+        L, x = np.empty((m, m)), np.empty(m)
+        K.spd_factor(A, m, L)
+        K.spd_substitute(L, b, m, x)
+        expected = np.linalg.solve(M, b)
+        cond = np.linalg.cond(M)
+        assert np.linalg.norm(x - expected) <= 1e-15 * cond * np.linalg.norm(expected) * 10 * m
+        np.testing.assert_allclose(np.tril(L) @ np.tril(L).T, M, atol=1e-12 * np.abs(M).max())
+    L, x = np.empty((2, 2)), np.empty(2)
+    K.spd_factor(np.array([[1.0, 2.0], [2.0, 1.0]]), 2, L)             # eigenvalues 3 and -1
+    K.spd_substitute(L, np.ones(2), 2, x)
+    assert np.isnan(x).all()
+
+
 def test_edge_rows_are_pinocchios_contact_jacobian(cobra):
     sim = Simulator(cobra, soft(ModelParameters.nominal()))
     rng = np.random.default_rng(0)
@@ -260,29 +284,30 @@ def test_the_soft_law_follows_mujocos_default_contact(cobra):
     assert gap["soft_constraint"] < 0.01
 
 
-def test_a_soft_contact_gets_at_least_four_steps_per_time_constant(cobra):
+def test_a_soft_contact_gets_at_least_eight_steps_per_time_constant(cobra):
     """``contact_resolved``: the default step is refined to an integer fraction of the servo
-    period with ``dt <= tc / 4``, never coarsened, the compliant ground left alone; explicit
+    period with ``dt <= tc / 8``, never coarsened, the compliant ground left alone; explicit
     settings are the user's."""
     base = SimSettings()
-    for tc, dt in ((0.002, 0.0005), (0.003, 0.0005), (0.0039, 0.0005), (0.004, 0.001), (0.02, 0.001)):
+    for tc, dt in ((0.002, 0.00025), (0.003, 0.001 / 3), (0.004, 0.0005), (0.0079, 0.0005), (0.008, 0.001),
+                   (0.02, 0.001)):
         resolved = contact_resolved(base, soft(ModelParameters.nominal().with_values(contact_time_constant=tc)))
         assert resolved.dt == pytest.approx(dt) and resolved.control_dt == base.control_dt, (tc, resolved)
         assert resolved.substeps * resolved.dt == pytest.approx(resolved.control_dt)
-    fine = SimSettings(dt=0.00025, control_dt=0.001)
+    fine = SimSettings(dt=0.0002, control_dt=0.001)
     assert contact_resolved(fine, soft(ModelParameters.nominal().with_values(contact_time_constant=0.002))) == fine
     stiff = ModelParameters.nominal().with_values(contact_time_constant=0.002)
     assert contact_resolved(base, stiff) == base                        # the compliant ground: no time constant
-    assert Simulator(cobra, soft(stiff)).settings.dt == pytest.approx(0.0005)
+    assert Simulator(cobra, soft(stiff)).settings.dt == pytest.approx(0.00025)
     assert Simulator(cobra, soft(stiff), base).settings.dt == base.dt   # given settings are kept
 
 
 @pytest.mark.slow
 def test_on_mujocos_stiff_contact_the_resolved_step_follows_mujocos_joints(cobra):
-    """Why a soft contact gets four steps per time constant: against MuJoCo's 2 ms contact (its
-    0.25 ms steps) at MuJoCo's values, the 0.65 Hz gait's joints with our 1 ms step are 1.6 mrad
-    off, 3.6 times the encoders' rounding floor (0.44 mrad); at the resolved 0.5 ms step 0.54 mrad
-    (measured), inside issue 16's 1.5 x floor."""
+    """Why a soft contact gets finer steps: against MuJoCo's 2 ms contact (its 0.25 ms steps) at
+    MuJoCo's values, the 0.65 Hz gait's joints with our 1 ms step are 1.6 mrad off, 3.6 times the
+    encoders' rounding floor (0.44 mrad); at the resolved step (0.25 ms, eight per time constant)
+    0.40 mrad (measured; 0.54 mrad at four), inside issue 16's 1.5 x floor."""
     truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
     ours = twin_counterpart(truth).with_values(contact_time_constant=0.002).with_contact_law("soft_constraint")
     gait, duration, every = SidewindingGait(0.65), 6.0, 0.02
@@ -336,19 +361,21 @@ def test_the_elliptic_law_follows_mujocos_elliptic_cone(cobra):
 @pytest.mark.parametrize("law", ["soft_constraint", "soft_elliptic"])
 def test_batched_soft_rollouts_are_the_single_ones(cobra, law):
     """Environments with different friction, time constants and armature (two rigid-body
-    models) step as single rollouts do, bit for bit."""
+    models) step as single rollouts do, bit for bit, at the step the fastest contact needs
+    (5 ms: 0.5 ms steps; the batch's default)."""
     gait = SidewindingGait(0.5)
     nominal = twin_counterpart(ModelParameters.nominal()).with_contact_law(law)
     params = [nominal, nominal.with_values(mu_c=0.4, mu_s=0.4, contact_time_constant=0.005),
               nominal.with_values(armature=0.05, contact_time_constant=0.04)]
-    sims = [Simulator(cobra, p) for p in params]
+    batch = BatchSimulator(cobra, params)
+    assert batch.settings == Simulator(cobra, params[1]).settings and batch.settings.dt == pytest.approx(0.0005)
+    sims = [Simulator(cobra, p, batch.settings) for p in params]
     states = [sim.rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=0.3 * k) for k, sim in enumerate(sims)]
     duration = 1.5
-    goals = sims[0].commands(gait.q_ref, 0.0, int(round(duration / 1e-3)) + 1)
-    batch = BatchSimulator(cobra, params)
+    goals = sims[0].commands(gait.q_ref, 0.0, int(round(duration / batch.settings.control_dt)) + 1)
     Q, _, _, _, _ = batch.rollout(states, np.repeat(goals[:, None], 3, axis=1), duration)
     for k, sim in enumerate(sims):
-        single = sim.rollout(states[k], goals, duration, record_every=1500).q[-1]
+        single = sim.rollout(states[k], goals, duration, record_every=3000).q[-1]
         np.testing.assert_array_equal(Q[k], single)
     assert np.linalg.norm(Q[0, :2] - Q[1, :2]) > 0.01                # the parameters matter
 

@@ -321,7 +321,7 @@ def fit_lsq_steps(objective: Objective, *, max_iterations: int = 20, budget_seco
 
     With the objective's automatic step (``Objective(settings=None)``), a fit whose soft contact
     ends on another step than it was fitted at (:func:`integrators.simulator.contact_resolved`:
-    at least four steps per time constant) gets a further whole-run stage at that step, from
+    at least ``STEPS_PER_CONTACT_TIME_CONSTANT`` steps per time constant) gets a further whole-run stage at that step, from
     where the last one ended (:data:`STEP_STAGES` at most): the values are fitted at the step
     their later simulations (``simulate_like``, an :class:`Objective` built on them) take.
 
@@ -368,8 +368,8 @@ def fit_lsq_steps(objective: Objective, *, max_iterations: int = 20, budget_seco
         stepped = objective.with_params(params0.from_unit(z))  # the same free set, so the same z
         if stepped.settings == objective.settings:
             break
-        # the fitted contact needs another step than the one fitted at (a soft contact at least four
-        # steps per time constant): the whole runs again at the step every later simulation of
+        # the fitted contact needs another step than the one fitted at (a soft contact at least
+        # STEPS_PER_CONTACT_TIME_CONSTANT steps per time constant): the whole runs again at the step every later simulation of
         # these values takes (simulate_like, an Objective built on them)
         done = objective.evaluations
         objective = stepped
