@@ -238,7 +238,7 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
     "mujoco_robustness": _robustness, "mujoco_robustness_current": _robustness,
     "mujoco_robustness_soft_constraint": _robustness,
     "mujoco_robustness_stiff": _robustness, "mujoco_robustness_stiff_current": _robustness,
-    "mujoco_fit_residual": _mujoco_fit,
+    "mujoco_fit_residual": _mujoco_fit, "mujoco_fit_residual_stiff": _mujoco_fit,
     "contact_time_constant": _contact_time_constant,
     "contact_law": _contact_law,
     "contact_step": _contact_step,
@@ -261,6 +261,9 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   ``sysid.discrepancy.diagnose.DEMAND_PROFILE_FRACTIONS``, CHANGELOG "twenty-second stop").
 #: - A batch runs each environment through the single rollout's compiled loop (CHANGELOG
 #:   "twenty-seventh stop"): the last bits of every batched fit and diagnosis, and their wall times.
+#: - The soft-constraint laws' solvers factor by Cholesky (roundoff-level differences, shorter
+#:   steps) and a soft contact gets eight steps per time constant, not four (a stiff contact's
+#:   runs and every soft-law fit screened from the stiff 2 ms start; CHANGELOG "twenty-eighth stop").
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -283,6 +286,9 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
       "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness",
       "mujoco_robustness_current", "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff",
       "mujoco_robustness_stiff_current", "mujoco_fit_residual", "coverage")),
+    ("2026-11-27T16:52", "9822ff8", "soft laws' solver and eight steps per contact time constant",
+     ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff",
+      "mujoco_robustness_soft_constraint", "mujoco_fit_residual", "contact_law", "contact_step", "sim_speed")),
 )
 
 

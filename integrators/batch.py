@@ -51,10 +51,10 @@ class BatchSimulator:
         laws = sorted({p.contact_law for p in params})
         if len(laws) > 1:
             raise InputError(f"a batch steps one contact law; the parameter sets have {', '.join(laws)}")
-        # environments given the same parameter set share its simulator (an objective passes one
-        # parameter set per run); the batch reads their parameters, the states are its own
         if settings is None:
             settings = min((contact_resolved(SimSettings(), p) for p in params), key=lambda s: s.dt)
+        # environments given the same parameter set share its simulator (an objective passes one
+        # parameter set per run); the batch reads their parameters, the states are its own
         made: dict[int, Simulator] = {}
         for p in params:
             if id(p) not in made:

@@ -122,9 +122,9 @@ def test_on_mujocos_elliptic_cone_the_elliptic_law_is_chosen_and_within_5_cm(ell
 def test_the_compliant_fit_finds_mujocos_contact_shapes(case):
     _, fits, _ = case
     fit = fits["compliant"]
-    # pyramid with body-aligned edges -> a diamond, cone -> 1 (0 = box, 0.5 = circle); measured 0.87
+    # pyramid with body-aligned edges -> a diamond, cone -> 1 (0 = box, 0.5 = circle); measured 0.93
     assert fit.params.friction_cone > 0.6
-    # capsule ends: rounding = the module radius (0 = sharp rim); measured 0.042 of 0.045 m
+    # capsule ends: rounding = the module radius (0 = sharp rim); measured 0.045 of 0.045 m (the bound)
     assert 0.5 * design.MODULE_RADIUS_M < fit.params.contact_rounding <= design.MODULE_RADIUS_M
 
 
@@ -132,7 +132,7 @@ def test_the_fitted_joints_follow_mujocos(case):
     choice, _, gaps = case
     before = np.array([g["joint_rmse_rad"]["mean"] for g in gaps["nominal"]])
     after = np.array([g["joint_rmse_rad"]["mean"] for g in gaps[choice.chosen]])
-    # held-out runs at another heading; measured 5.9-16 -> 1.4-2.5 mrad on the development seed
+    # held-out runs at another heading; measured 8.5-22 -> 0.55-0.63 mrad on the development seed
     assert np.all(after < 0.5 * before), (before, after)
 
 
@@ -151,8 +151,9 @@ def test_on_mujocos_soft_contact_the_soft_constraint_law_is_chosen(case):
 def test_held_out_head_error_within_5_cm_on_every_gait(case):
     """Issue 16's bound on MuJoCo's default contact, with the law chosen on validation runs.
 
-    Measured 0.22 / 0.51 / 0.89 cm at 0.35 / 0.5 / 0.65 Hz (held-out joints 0.68-0.79 mrad; the
-    nominal model 5-13 cm, the compliant law's fit 3.8-9.6 cm). With the soft law's per-edge
+    Measured 0.38 / 1.36 / 1.18 cm at 0.35 / 0.5 / 0.65 Hz (held-out joints 0.55-0.63 mrad; the
+    nominal model 5-13 cm, the compliant law's fit 3.8-9.6 cm; 0.22 / 0.51 / 0.89 cm before the
+    soft solver's Cholesky and the rule of eight steps per contact time constant, 9822ff8). With the soft law's per-edge
     regulariser of before (``integrators.kernels.soft_contact_acceleration``) it was 1.0 / 3.1 /
     7.8 cm and this test an expected failure."""
     choice, _, gaps = case
@@ -161,8 +162,9 @@ def test_held_out_head_error_within_5_cm_on_every_gait(case):
 
 def test_on_mujocos_stiff_contact_the_held_out_head_error_is_within_5_cm(stiff_case):
     """Issue 16's bound on MuJoCo's stiff contact (2 ms time constant), with the law chosen on
-    validation runs: the soft-constraint law, whose held-out heads were measured 0.63 / 0.62 /
-    0.52 cm at 0.35 / 0.5 / 0.65 Hz (nominal model: 5-25 cm).
+    validation runs: the soft-constraint law, whose held-out heads were measured 0.14 / 0.59 /
+    0.99 cm at 0.35 / 0.5 / 0.65 Hz (nominal model: 5-25 cm; 0.63 / 0.62 / 0.52 cm at four steps
+    per contact time constant, before 9822ff8).
 
     The compliant law is not chosen here, and its held-out error is not a claim: its fit stops
     where no step descends (``NO_DESCENT``) with joints 2-2.5 times the encoders' floor, and where
@@ -180,7 +182,7 @@ def test_on_mujocos_stiff_contact_the_compliant_law_finds_the_shapes_and_its_sti
     """What the compliant law can say of MuJoCo's stiff contact: the ends' shapes, the sliding
     friction, and that the ground is stiffer than the law's stiffest spring."""
     choice, _ = stiff_case
-    fit = next(f.fit for f in choice.fits if f.law == "compliant")
+    fit = choice.fit_of("compliant").fit
     # measured: cone 0.93, rounding 0.037 of 0.045 m
     assert fit.params.friction_cone > 0.6 and fit.params.contact_rounding > 0.5 * design.MODULE_RADIUS_M
     # MuJoCo's sliding friction 0.24. The Coulomb level trades with the Stribeck terms, so its value
@@ -198,16 +200,18 @@ def test_on_mujocos_stiff_contact_the_soft_law_starts_on_a_stiff_ground_and_find
     configuration (the cost along the time constant is rough on a stiff ground; on these runs
     10.2 ms, held-out joints 1.07-1.45 mrad, 2.4-3.3 times the encoders' floor). Every start on
     the stiffest ground screens lower on the first 1.5 s than every start on the soft one
-    (measured 0.90-4.7 against 8.6-9.7); the lowest, capsule ends, is the one fitted on the whole
-    runs, and ends near MuJoCo's values (measured: time constant 2.6 ms, damping 0.163, ``mu_c``
-    0.2406, rounding 0.0448 m), with joints at 0.68 / 0.60 / 0.66 mrad at 0.35 / 0.5 / 0.65 Hz
-    from these 3 s training runs (issue 16's bar, 1.5x the encoders' floor, is 0.66 mrad; the
-    benchmark's 6 s runs report it). Asserted: within twice the floor, which the soft ground's
-    basin does not meet."""
+    (measured 0.73-3.7 against 8.1-9.7); the lowest, capsule ends, is the one fitted on the whole
+    runs, and ends near MuJoCo's values (measured: time constant 2.3 ms, damping 0.168, ``mu_c``
+    0.2389, rounding 0.0450 m), with held-out joints at 0.51 / 0.55 / 0.56 mrad at 0.35 / 0.5 /
+    0.65 Hz from these 3 s training runs (0.68 / 0.60 / 0.66 at four steps per time constant,
+    before 9822ff8). Asserted: within issue 16's bar, 1.5x the encoders' floor (0.66 mrad), which
+    four steps per time constant met only to its last digit and the soft ground's basin misses
+    (2.4-3.3 times the floor)."""
     choice, gaps = stiff_case
-    law = next(f for f in choice.fits if f.law == "soft_constraint")
-    stiff = [s for s in law.starts if s.values["contact_time_constant"] == 0.002]
-    soft = [s for s in law.starts if s.values["contact_time_constant"] != 0.002]
+    law = choice.fit_of("soft_constraint")
+    stiffest = law.fit.params["contact_time_constant"].min          # the stiff start: MuJoCo's own lowest, 2 ms
+    stiff = [s for s in law.starts if s.values["contact_time_constant"] == stiffest]
+    soft = [s for s in law.starts if s.values["contact_time_constant"] != stiffest]
     assert max(s.screen_cost for s in stiff) < min(s.screen_cost for s in soft), law.starts
     assert [s.cost is not None for s in law.starts].count(True) == 1 and all(s.cost is None for s in soft)
     fitted = law.fit.params
@@ -215,4 +219,4 @@ def test_on_mujocos_stiff_contact_the_soft_law_starts_on_a_stiff_ground_and_find
     assert abs(fitted.joint_damping - 0.16) <= 0.016 and abs(fitted.mu_c - 0.24) <= 0.024, fitted
     assert fitted.contact_rounding > 0.9 * design.MODULE_RADIUS_M  # MuJoCo's capsule ends
     joints = [g["joint_rmse_rad"]["mean"] for g in gaps["soft_constraint"]]
-    assert max(joints) <= 2 * SENSOR_NOISE["joints"], joints
+    assert max(joints) <= 1.5 * SENSOR_NOISE["joints"], joints

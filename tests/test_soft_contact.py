@@ -439,6 +439,18 @@ def test_choosing_a_contact_law_needs_held_out_runs_and_known_laws():
         choose_contact_law([object()], [object()], laws=["rigid"])
 
 
+def test_a_contact_choice_gives_each_laws_fit_and_names_the_fitted_ones_for_another():
+    from sysid.identification.contact_choice import ContactChoice, LawFit
+
+    fits = tuple(LawFit(law, fit=None, held_out_cost=c, starts=(), seconds=1.0)
+                 for law, c in (("compliant", 2.0), ("soft_constraint", 1.0)))
+    choice = ContactChoice(fits, chosen="soft_constraint")
+    assert choice.fit_of("compliant") is fits[0] and choice.best is fits[1]
+    with pytest.raises(InputError, match="no fit of the 'soft_elliptic' contact law here; fitted: compliant, "
+                                         "soft_constraint"):
+        choice.fit_of("soft_elliptic")
+
+
 def test_a_fit_from_shapes_starts_at_each_rounding_when_it_is_free_and_keeps_the_lowest_cost():
     """The mechanism of the multi-start (no real fit: the fit is a stand-in that records where it
     starts and whose cost has its minimum between the second and third shape)."""

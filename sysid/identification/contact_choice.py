@@ -242,7 +242,18 @@ class ContactChoice:
     @property
     def best(self) -> LawFit:
         """The chosen law's fit."""
-        return next(f for f in self.fits if f.law == self.chosen)
+        return self.fit_of(self.chosen)
+
+    def fit_of(self, law: str) -> LawFit:
+        """The fit of contact law ``law``.
+
+        Raises:
+            InputError: when ``law`` was not fitted, naming the laws that were.
+        """
+        for f in self.fits:
+            if f.law == law:
+                return f
+        raise InputError(f"no fit of the {law!r} contact law here; fitted: {', '.join(f.law for f in self.fits)}")
 
     def to_json(self) -> dict:
         return {"chosen": self.chosen, "fits": [f.to_json() for f in self.fits]}
