@@ -321,9 +321,10 @@ def fit_lsq_steps(objective: Objective, *, max_iterations: int = 20, budget_seco
 
     With the objective's automatic step (``Objective(settings=None)``), a fit whose soft contact
     ends on another step than it was fitted at (:func:`integrators.simulator.contact_resolved`:
-    at least ``STEPS_PER_CONTACT_TIME_CONSTANT`` steps per time constant) gets a further whole-run stage at that step, from
-    where the last one ended (:data:`STEP_STAGES` at most): the values are fitted at the step
-    their later simulations (``simulate_like``, an :class:`Objective` built on them) take.
+    at least ``STEPS_PER_CONTACT_TIME_CONSTANT`` steps per time constant) gets a further
+    whole-run stage at that step, from where the last one ended (:data:`STEP_STAGES` at most):
+    the values are fitted at the step their later simulations (``simulate_like``, an
+    :class:`Objective` built on them) take.
 
     Returns:
         FitResult with the fitted parameters, an iteration log (with each entry's horizon), a
@@ -369,8 +370,8 @@ def fit_lsq_steps(objective: Objective, *, max_iterations: int = 20, budget_seco
         if stepped.settings == objective.settings:
             break
         # the fitted contact needs another step than the one fitted at (a soft contact at least
-        # STEPS_PER_CONTACT_TIME_CONSTANT steps per time constant): the whole runs again at the step every later simulation of
-        # these values takes (simulate_like, an Objective built on them)
+        # STEPS_PER_CONTACT_TIME_CONSTANT steps per time constant): the whole runs again at the
+        # step every later simulation of these values takes (simulate_like, an Objective built on them)
         done = objective.evaluations
         objective = stepped
         lm = yield from _levenberg_marquardt(objective, z, max_iterations=max(max_iterations, 1),
