@@ -1,5 +1,5 @@
 // Pinocchio's articulated-body algorithm (and, for the soft-constraint contact, the inverse mass
-// matrix and the nonlinear effects) behind a C interface, so that the simulator's compiled
+// matrix from the same pass) behind a C interface, so that the simulator's compiled
 // (numba) loops call them per step without a trip through Python.
 //
 // The model is rebuilt here from the Python model's own fields (joint types, parents,
@@ -7,16 +7,15 @@
 // instantiation that libpinocchio_default ships (PINOCCHIO_ENABLE_TEMPLATE_INSTANTIATION, the
 // Eigen::Ref argument types of the extern template): the same machine code that `pin.aba` runs,
 // so the accelerations are bit for bit those of `pin.aba` on the Python model. The inverse mass
-// matrix and the nonlinear effects take the Python binding's path too (the Ref overloads);
-// tests/test_native_aba.py checks all three bit for bit. Only what the simulator's kinematic chains hold is
-// accepted: one free-flyer root and revolute joints (aligned with x, y, z or not).
+// matrix takes the Python binding's path too; tests/test_native_aba.py checks both bit for bit.
+// Only what the simulator's kinematic chains hold is accepted: one free-flyer root and revolute
+// joints (aligned with x, y, z or not).
 #include <Python.h>
 
 #include <cstdint>
 #include <vector>
 
 #include "pinocchio/algorithm/aba.hpp"
-#include "pinocchio/algorithm/rnea.hpp"
 #include "pinocchio/multibody.hpp"
 
 namespace {
@@ -91,24 +90,20 @@ int32_t cobra_aba(intptr_t model, intptr_t data, const double* q, const double* 
   return 0;
 }
 
-// D(q)^-1 into minv (nv x nv, row-major) as `pin.computeMinverse(model, data, q)`: its upper
-// triangle (Pinocchio fills only that). Returns 0.
-int32_t cobra_minverse(intptr_t model, intptr_t data, const double* q, double* minv) {
-  const Model& m = *reinterpret_cast<Model*>(model);
-  Data& d = *reinterpret_cast<Data*>(data);
-  const ConstRef qr = Eigen::Map<const VectorXd>(q, m.nq);
-  Eigen::Map<Data::RowMatrixXs>(minv, m.nv, m.nv) = pinocchio::computeMinverse(m, d, qr);
-  return 0;
-}
-
-// The nonlinear effects (Coriolis, centrifugal and gravity terms, nv) into nle, as
-// `pin.nonLinearEffects(model, data, q, v)`. Returns 0.
-int32_t cobra_nonlinear_effects(intptr_t model, intptr_t data, const double* q, const double* v, double* nle) {
+// For the soft-constraint contact: the acceleration without contact a (nv,) = ABA(q, v, tau)
+// and D(q)^-1 into minv (nv x nv, row-major; its upper triangle, as Pinocchio fills it) from one
+// articulated-body pass, as `pin.aba(model, data, q, v, tau, pin.Convention.WORLD)` then
+// `pin.computeMinverse(model, data)`, which reuses that pass's articulated inertias (the soft law
+// took computeMinverse(q) and nonLinearEffects(q, v) before: two passes). Returns 0.
+int32_t cobra_aba_minverse(intptr_t model, intptr_t data, const double* q, const double* v, const double* tau,
+                           double* a, double* minv) {
   const Model& m = *reinterpret_cast<Model*>(model);
   Data& d = *reinterpret_cast<Data*>(data);
   const ConstRef qr = Eigen::Map<const VectorXd>(q, m.nq);
   const ConstRef vr = Eigen::Map<const VectorXd>(v, m.nv);
-  Eigen::Map<VectorXd>(nle, m.nv) = pinocchio::nonLinearEffects(m, d, qr, vr);
+  const ConstRef tr = Eigen::Map<const VectorXd>(tau, m.nv);
+  Eigen::Map<VectorXd>(a, m.nv) = pinocchio::aba(m, d, qr, vr, tr, pinocchio::Convention::WORLD);
+  Eigen::Map<Data::RowMatrixXs>(minv, m.nv, m.nv) = pinocchio::computeMinverse(m, d);
   return 0;
 }
 
@@ -116,7 +111,7 @@ int32_t cobra_nonlinear_effects(intptr_t model, intptr_t data, const double* q, 
 
 // An importable module, so that the library is found like any other part of the package
 // (integrators/native.py loads its C functions from this file).
-static struct PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_aba", "Pinocchio's ABA, inverse mass matrix and nonlinear effects behind a C interface.", -1,
+static struct PyModuleDef module_def = {PyModuleDef_HEAD_INIT, "_aba", "Pinocchio's ABA and inverse mass matrix behind a C interface.", -1,
                                         nullptr};
 
 PyMODINIT_FUNC PyInit__aba(void) { return PyModule_Create(&module_def); }

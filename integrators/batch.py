@@ -140,7 +140,6 @@ class BatchSimulator:
         work = np.empty((n, K.workspace_size(nf, nb)))
         record = np.empty((n, n_rec, nq + nv + nj))
         minv = np.zeros((n, nv, nv) if self._soft else (n, 0, 0))
-        nle = np.empty((n, nv) if self._soft else (n, 0))
         warm = np.zeros((n, nf, 4) if self._soft else (n, 0, 4))
         status = np.zeros(n, dtype=np.int64)
         failed_at = np.zeros(n, dtype=np.int64)
@@ -150,7 +149,7 @@ class BatchSimulator:
         try:
             K.batch_rollout_loop(*self._handles, K.LOOP_LAWS[f.contact_law], plan, Q, V, A, goals, gidx, servo, on,
                                  self.act, f.scal, self.ground, f._chain_i, f._chain_R, f._chain_f, f._feat_i,
-                                 f._feat_f, np.empty((n, nv)), work, record, minv, nle, self.body_weight, warm, status,
+                                 f._feat_f, np.empty((n, nv)), work, record, minv, self.body_weight, warm, status,
                                  failed_at)
         finally:
             numba.set_num_threads(threads)

@@ -23,7 +23,7 @@ from numba import njit, prange
 
 from cobra_model.parameters import Parameter
 from cobra_model.servo import PULSES_PER_REV, PWM_FULL_SCALE, SERVO_STALL_TORQUE_NM
-from integrators.native import ABA, MINVERSE, NONLINEAR_EFFECTS
+from integrators.native import ABA, ABA_MINVERSE
 
 # Indices into the ground parameter array ``ground``.
 G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL, G_CONE, G_ROUND, G_TC = range(11)
@@ -576,13 +576,13 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
 
 @njit(cache=True)
 def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, servo, torque_on, act, scal, ground,
-                 chain_i, chain_R, chain_f, feat_i, feat_f, tau, work, record, minv, nle, body_weight, warm):
+                 chain_i, chain_R, chain_f, feat_i, feat_f, tau, work, record, minv, body_weight, warm):
     """Steps ``start`` to ``stop - 1`` of a rollout in one compiled loop: :func:`rollout_step`,
     then the acceleration ``a`` (nv,) that the next step integrates, by the contact law ``law``
     (:data:`LOOP_LAWS`): Pinocchio's ABA (:data:`integrators.native.ABA`) for the compliant
-    ground; for a soft-constraint law Pinocchio's ``D^-1`` into ``minv`` (nv, nv) and nonlinear
-    effects into ``nle`` (nv,) (:data:`integrators.native.MINVERSE`, ``NONLINEAR_EFFECTS``),
-    then :func:`soft_contact_acceleration` with the bodies' weights ``body_weight`` and the
+    ground; for a soft-constraint law the same pass's acceleration without contact and ``D^-1``
+    into ``minv`` (nv, nv) (:data:`integrators.native.ABA_MINVERSE`), then
+    :func:`soft_contact_acceleration` with the bodies' weights ``body_weight`` and the
     solver's warm start ``warm``. ``aba_model``, ``aba_data``: the native model and workspace
     handles. The other arguments are :func:`rollout_step`'s.
 
@@ -600,16 +600,15 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
         if law == LAW_COMPLIANT:
             ABA(aba_model, aba_data, q.ctypes, v.ctypes, tau.ctypes, a.ctypes)
         else:
-            MINVERSE(aba_model, aba_data, q.ctypes, minv.ctypes)
-            NONLINEAR_EFFECTS(aba_model, aba_data, q.ctypes, v.ctypes, nle.ctypes)
-            soft_contact_acceleration(v, tau, minv, nle, floating, chain_i[:, 0], chain_i[:, 2], feat_i[:, 0], X,
+            ABA_MINVERSE(aba_model, aba_data, q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes)
+            soft_contact_acceleration(v, minv, floating, chain_i[:, 0], chain_i[:, 2], feat_i[:, 0], X,
                                       kin_R, kin_v, ground, law == LAW_SOFT_ELLIPTIC, body_weight, warm, a)
     return STATUS_OK, stop - 1
 
 
 @njit(cache=True, parallel=True)
 def batch_rollout_loop(aba_models, aba_data, law, plan, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
-                       ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, NLE, WEIGHT, WARM,
+                       ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, WEIGHT, WARM,
                        status, failed_at):
     """Every environment ``e`` of a batch (rows of the arrays) through a whole rollout, one
     environment per thread at a time: :func:`rollout_loop` on ``Q[e]``, ``V[e]``, ... with the
@@ -630,7 +629,7 @@ def batch_rollout_loop(aba_models, aba_data, law, plan, Q, V, A, goals, goal_ind
     for e in prange(Q.shape[0]):
         s, i = rollout_loop(0, plan[P_STEPS] + 1, aba_models[e], aba_data[e], law, plan, Q[e], V[e], A[e],
                             goals[:, goal_index[e]], SERVO[e], torque_on, act[e], scal, ground[e], chain_i, chain_R,
-                            chain_f, feat_i, feat_f, TAU[e], WORK[e], RECORD[e], MINV[e], NLE[e], WEIGHT[e], WARM[e])
+                            chain_f, feat_i, feat_f, TAU[e], WORK[e], RECORD[e], MINV[e], WEIGHT[e], WARM[e])
         status[e] = s
         failed_at[e] = i
 
@@ -1042,8 +1041,8 @@ def _store_warm(X, f, per, warm):
 
 
 @njit(cache=True)
-def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body, X, kin_R, kin_v,
-                              ground, elliptic, body_weight, warm, a_out):
+def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground, elliptic,
+                              body_weight, warm, a):
     """Accelerations (nv,) under the soft-constraint contact law, MuJoCo's (condim 3), on the
     friction pyramid or, with ``elliptic``, on the elliptic cone
     (:func:`elliptic_contact_acceleration`; the rest of this docstring is the pyramid's).
@@ -1057,7 +1056,7 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
         (A + R) f = a_ref - J a0,  A = J D^-1 J^T,  R = 2 mu1^2 (1 - d) / d (1 + mu1^2) w  (each edge of a contact),
         a_ref = -b J v - k d r - c,    b = 2 / (d_max tc),  k = 1 / (d_max^2 tc^2 zeta^2),
 
-    with ``a0 = D^-1 (tau - nle)`` the acceleration without contact, ``r`` the depth [m],
+    with ``a0`` the acceleration without contact, ``r`` the depth [m],
     ``c`` the rows' ``drift`` (the floating root frame's turning, :func:`soft_contact_rows`),
     ``d(r)`` :func:`soft_impedance` and ``w`` the weight of the contact's body, its mean
     translational inverse inertia at the reference pose
@@ -1081,9 +1080,9 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
     contact's four edges are nearly parallel and so are the two contacts of one module.)
 
     Args:
-        v, tau, nle: velocity, generalized force without contact and Pinocchio's nonlinear
-            effects (nv,).
-        Minv: ``D^-1`` with at least its upper triangle filled (``pin.computeMinverse``).
+        v: velocity (nv,).
+        Minv: ``D^-1`` (nv, nv) with its upper triangle filled (as ``pin.computeMinverse``
+            leaves it); its lower triangle is filled here.
         f_body, X, kin_R, kin_v: the features' bodies and the points, rotations and body
             velocities :func:`ground_forces` left.
         ground: the ground parameters: ``mu1 = G_MU_C`` along the body, ``mu2 = mu1 G_LATERAL``
@@ -1093,24 +1092,17 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
         warm: (nf, 4) each feature's edge forces [N] of the last step (on the elliptic cone its
             normal and two friction forces in the first three columns), the solver's start;
             overwritten with this step's (zero where not touching).
-        a_out: output (nv,).
+        a: (nv,) the acceleration without contact ``a0`` on entry (Pinocchio's ABA under the
+            generalized force without contact), the acceleration with the contact forces on
+            return.
 
     Returns:
         the solver's iterations (0 without contact).
     """
     nv = v.shape[0]
-    D = np.empty((nv, nv))
-    for i in range(nv):
-        for j in range(nv):
-            D[i, j] = Minv[i, j] if i <= j else Minv[j, i]
-    g = np.empty(nv)
-    for i in range(nv):
-        g[i] = tau[i] - nle[i]
-    for i in range(nv):
-        acc = 0.0
-        for j in range(nv):
-            acc += D[i, j] * g[j]
-        a_out[i] = acc
+    for i in range(nv):               # D^-1 whole: Pinocchio fills its upper triangle
+        for j in range(i):
+            Minv[i, j] = Minv[j, i]
     mu1, tc = ground[G_MU_C], ground[G_TC]
     rows, depth, drift = soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, v, mu1,
                                            mu1 * ground[G_LATERAL], elliptic)
@@ -1129,11 +1121,11 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
             weight[row // per] = body_weight[f_body[k]]
             row += per
     if elliptic:
-        iterations = elliptic_contact_acceleration(D, a_out.copy(), v, rows, depth, drift, weight, mu1,
-                                                   mu1 * ground[G_LATERAL], tc, f, a_out)
+        iterations = elliptic_contact_acceleration(Minv, a.copy(), v, rows, depth, drift, weight, mu1,
+                                                   mu1 * ground[G_LATERAL], tc, f, a)
         _store_warm(X, f, per, warm)
         return iterations
-    W = rows @ D                      # (m, nv): rows D^-1, D^-1 symmetric
+    W = rows @ Minv                   # (m, nv): rows D^-1, D^-1 symmetric
     A = W @ rows.T
     d_max = SOFT_SOLIMP[1]
     bcoef = 2.0 / (d_max * tc)
@@ -1148,7 +1140,7 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
             ja = 0.0
             for col in range(nv):
                 jv += rows[j, col] * v[col]
-                ja += rows[j, col] * a_out[col]
+                ja += rows[j, col] * a[col]
             rhs[j] = -bcoef * jv - kcoef * d * depth[j] - drift[j] - ja
     iterations = nonnegative_qp(A, rhs, f)
     _store_warm(X, f, per, warm)
@@ -1156,5 +1148,5 @@ def soft_contact_acceleration(v, tau, Minv, nle, floating, parents, vidx, f_body
         acc = 0.0
         for j in range(m):
             acc += W[j, col] * f[j]
-        a_out[col] += acc
+        a[col] += acc
     return iterations

@@ -1,5 +1,5 @@
-"""Pinocchio's ABA (and, for the soft-constraint contact, the inverse mass matrix and the
-nonlinear effects) for the compiled loops: the C interface of ``integrators/_aba.cpp``.
+"""Pinocchio's ABA (and, for the soft-constraint contact, the inverse mass matrix from the same
+pass) for the compiled loops: the C interface of ``integrators/_aba.cpp``.
 
 The simulator's kernels are numba code; a rollout that called ``pin.aba`` from Python between
 two kernel calls paid a trip through the interpreter twice per physics step, several times
@@ -8,7 +8,7 @@ what the kernels cost. ``_aba.cpp`` (built with the package against the same
 calls :data:`ABA` like any C function, so a whole rollout runs in one compiled loop
 (``integrators.kernels.rollout_loop``) and ABA is still Pinocchio's: the same explicit
 instantiation as ``pin.aba``, whose accelerations it reproduces bit for bit (and so for
-``pin.computeMinverse`` and ``pin.nonLinearEffects``, the soft-constraint law's terms).
+``pin.computeMinverse``, the soft-constraint law's inverse mass matrix).
 
 :class:`NativeModel` rebuilds a :class:`~cobra_model.model.RobotModel`'s Pinocchio model on the
 C++ side from its fields (joint types, parents, placements, inertias, armature, gravity);
@@ -55,10 +55,8 @@ _lib.cobra_data_new.argtypes = [ctypes.c_ssize_t]
 _lib.cobra_data_free.argtypes = [ctypes.c_ssize_t]
 _lib.cobra_aba.restype = ctypes.c_int32
 _lib.cobra_aba.argtypes = [ctypes.c_ssize_t, ctypes.c_ssize_t, _F64P, _F64P, _F64P, _F64P]
-_lib.cobra_minverse.restype = ctypes.c_int32
-_lib.cobra_minverse.argtypes = [ctypes.c_ssize_t, ctypes.c_ssize_t, _F64P, _F64P]
-_lib.cobra_nonlinear_effects.restype = ctypes.c_int32
-_lib.cobra_nonlinear_effects.argtypes = [ctypes.c_ssize_t, ctypes.c_ssize_t, _F64P, _F64P, _F64P]
+_lib.cobra_aba_minverse.restype = ctypes.c_int32
+_lib.cobra_aba_minverse.argtypes = [ctypes.c_ssize_t, ctypes.c_ssize_t, _F64P, _F64P, _F64P, _F64P, _F64P]
 _F64 = types.CPointer(types.float64)
 
 #: ``cobra_aba(model, data, q, v, tau, a)`` for numba code: the acceleration (nv,) into ``a``
@@ -66,13 +64,12 @@ _F64 = types.CPointer(types.float64)
 #: LOCAL convention; ``model`` and ``data`` are :attr:`NativeModel.handle` and
 #: :attr:`NativeData.handle`. Returns 0.
 ABA = types.ExternalFunction("cobra_aba", types.int32(types.intp, types.intp, _F64, _F64, _F64, _F64))
-#: ``cobra_minverse(model, data, q, minv)``: ``D(q)^-1`` into ``minv`` (nv, nv) C-ordered, its upper
-#: triangle as ``pin.computeMinverse(model, data, q)`` fills it. Returns 0.
-MINVERSE = types.ExternalFunction("cobra_minverse", types.int32(types.intp, types.intp, _F64, _F64))
-#: ``cobra_nonlinear_effects(model, data, q, v, nle)``: ``pin.nonLinearEffects(model, data, q, v)``
-#: (nv,) into ``nle``. Returns 0.
-NONLINEAR_EFFECTS = types.ExternalFunction("cobra_nonlinear_effects",
-                                           types.int32(types.intp, types.intp, _F64, _F64, _F64))
+#: ``cobra_aba_minverse(model, data, q, v, tau, a, minv)``: the acceleration without contact (nv,)
+#: into ``a`` and ``D(q)^-1`` into ``minv`` (nv, nv) C-ordered, its upper triangle, from one
+#: articulated-body pass: ``pin.aba(model, data, q, v, tau, pin.Convention.WORLD)`` then
+#: ``pin.computeMinverse(model, data)``. Returns 0.
+ABA_MINVERSE = types.ExternalFunction("cobra_aba_minverse",
+                                      types.int32(types.intp, types.intp, _F64, _F64, _F64, _F64, _F64))
 
 
 def _f64(a: np.ndarray) -> np.ndarray:
@@ -168,22 +165,15 @@ def aba(data: NativeData, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.n
     return a
 
 
-def minverse(data: NativeData, q: np.ndarray) -> np.ndarray:
-    """``D(q)^-1`` (nv, nv), upper triangle, from Python (the loops call :data:`MINVERSE`)."""
-    q, _ = _state(data, q, np.zeros(data.model.nv))
+def aba_minverse(data: NativeData, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The acceleration (nv,) and ``D(q)^-1`` (nv, nv), upper triangle, from Python (the loops
+    call :data:`ABA_MINVERSE`)."""
+    q, v, tau = _state(data, q, v, tau)
+    a = np.empty(data.model.nv)
     minv = np.zeros((data.model.nv, data.model.nv))
-    _lib.cobra_minverse(data.model.handle, data.handle, q.ctypes.data_as(_F64P), minv.ctypes.data_as(_F64P))
-    return minv
+    _lib.cobra_aba_minverse(data.model.handle, data.handle, q.ctypes.data_as(_F64P), v.ctypes.data_as(_F64P),
+                            tau.ctypes.data_as(_F64P), a.ctypes.data_as(_F64P), minv.ctypes.data_as(_F64P))
+    return a, minv
 
 
-def nonlinear_effects(data: NativeData, q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """The nonlinear effects (nv,) from Python (the loops call :data:`NONLINEAR_EFFECTS`)."""
-    q, v = _state(data, q, v)
-    nle = np.empty(data.model.nv)
-    _lib.cobra_nonlinear_effects(data.model.handle, data.handle, q.ctypes.data_as(_F64P), v.ctypes.data_as(_F64P),
-                                 nle.ctypes.data_as(_F64P))
-    return nle
-
-
-__all__ = ["ABA", "LIBRARY", "MINVERSE", "NONLINEAR_EFFECTS", "NativeData", "NativeModel", "aba", "minverse",
-           "native_model", "nonlinear_effects"]
+__all__ = ["ABA", "ABA_MINVERSE", "LIBRARY", "NativeData", "NativeModel", "aba", "aba_minverse", "native_model"]

@@ -484,11 +484,11 @@ class Simulator:
         them)."""
         if self.contact_law == "compliant":
             return pin.aba(model, data, q, v, tau)
-        a = np.empty(self.model.nv)
-        K.soft_contact_acceleration(v, tau, pin.computeMinverse(model, data, q), pin.nonLinearEffects(model, data, q, v),
-                                    self.model.chain.floating, self._chain_i[:, 0], self._chain_i[:, 2],
-                                    self._feat_i[:, 0], self._X, self._kin_R, self._kin_v, self.ground,
-                                    K.SOFT_LAWS[self.contact_law], self.model.reference_weights, self._soft_warm, a)
+        a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD).copy()
+        K.soft_contact_acceleration(v, pin.computeMinverse(model, data).copy(), self.model.chain.floating,
+                                    self._chain_i[:, 0], self._chain_i[:, 2], self._feat_i[:, 0], self._X, self._kin_R,
+                                    self._kin_v, self.ground, K.SOFT_LAWS[self.contact_law],
+                                    self.model.reference_weights, self._soft_warm, a)
         return a
 
     def _momentum_step(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray,
@@ -568,9 +568,9 @@ class Simulator:
             if self._native is None:
                 self._native = native.NativeData(native.native_model(self.model))
             handles = self._native.model.handle, self._native.handle, K.LOOP_LAWS[self.contact_law]
-            # the soft-constraint laws' workspace: D^-1, the nonlinear effects, the bodies' weights, warm start
+            # the soft-constraint laws' workspace: D^-1, the bodies' weights, warm start
             weights = self.model.reference_weights if self.contact_law in K.SOFT_LAWS else np.zeros(0)
-            soft = (np.zeros((nv, nv)), np.empty(nv), weights, self._soft_warm)
+            soft = (np.zeros((nv, nv)), weights, self._soft_warm)
             chunk = report_every if progress is not None else n_steps + 1
             for start in range(0, n_steps + 1, chunk):
                 status, i = K.rollout_loop(start, min(start + chunk, n_steps + 1), *handles, plan, q, v, a, goals,

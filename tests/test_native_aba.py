@@ -1,6 +1,6 @@
-"""Pinocchio's ABA, inverse mass matrix and nonlinear effects behind the C interface the compiled
-loops call (``integrators.native``) are ``pin.aba``, ``pin.computeMinverse`` and
-``pin.nonLinearEffects`` bit for bit, and the rollout that calls them from one compiled loop is
+"""Pinocchio's ABA and inverse mass matrix behind the C interface the compiled loops call
+(``integrators.native``) are ``pin.aba`` and (after a WORLD-convention ``pin.aba``)
+``pin.computeMinverse`` bit for bit, and the rollout that calls them from one compiled loop is
 the plain step-by-step rollout bit for bit, on COBRA and on robots this project did not write.
 
 Exact equality, not a tolerance: the C++ model is a field-by-field copy and ABA is the same
@@ -67,13 +67,16 @@ def test_native_dynamics_are_pinocchios_bit_for_bit(cobra, erd_dir, tmp_path):
             v, tau = rng.normal(size=pm.nv), 10.0 * rng.normal(size=pm.nv)
             a = native.aba(data, q, v, tau)
             assert np.array_equal(a, pin.aba(pm, reference, q, v, tau)), name
-            minv = native.minverse(data, q)
-            assert np.array_equal(np.triu(minv), np.triu(pin.computeMinverse(pm, reference, q))), name
-            nle = native.nonlinear_effects(data, q, v)
-            assert np.array_equal(nle, pin.nonLinearEffects(pm, reference, q, v)), name
-        assert np.abs(a).max() > 0.1 and np.abs(nle).max() > 0.1, name  # real values, not zeros on both sides
+            a_world, minv = native.aba_minverse(data, q, v, tau)
+            assert np.array_equal(a_world, pin.aba(pm, reference, q, v, tau, pin.Convention.WORLD)), name
+            assert np.array_equal(np.triu(minv), np.triu(pin.computeMinverse(pm, reference))), name
+            # the WORLD pass is the same dynamics as the LOCAL one, to roundoff
+            assert np.allclose(a_world, a, rtol=1e-9, atol=1e-9 * np.abs(a).max()), name
+        assert np.abs(a).max() > 0.1, name  # real values, not zeros on both sides
         D = np.triu(minv) + np.triu(minv, 1).T
         assert np.allclose(D @ model.mass_matrix(q), np.eye(pm.nv), atol=1e-8), name  # and it is D^-1
+        assert np.allclose(D @ (tau - pin.nonLinearEffects(pm, reference, q, v)), a, rtol=1e-8,
+                           atol=1e-8 * np.abs(a).max()), name  # and a = D (tau - nle)
 
 
 def test_the_native_model_is_built_once_per_model(cobra):
