@@ -7,8 +7,8 @@ evaluating the compliant ground and the actuator, and mapping the contact forces
 forces ``J^T F``. To do so in one compiled call per step they walk the kinematic tree with the
 joint placements and axes read from the Pinocchio model; ``tests/test_kernels.py`` checks
 positions, velocities and ``J^T F`` against Pinocchio's own frame Jacobians to 1e-12. A single
-rollout's loop (:func:`rollout_loop`) calls Pinocchio's ABA (or, for the soft-constraint laws,
-its inverse mass matrix and nonlinear effects) through :mod:`integrators.native`, so that the
+rollout's loop (:func:`rollout_loop`) calls Pinocchio's ABA (for the soft-constraint laws with
+the inverse mass matrix from the same pass) through :mod:`integrators.native`, so that the
 whole loop is compiled; a batch (:func:`batch_rollout_loop`) runs that loop for each of its
 environments on the worker threads.
 
