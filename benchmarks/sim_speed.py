@@ -117,9 +117,8 @@ def main() -> None:
             **{name: run for name, run, _ in paths}}
     best = interleaved_best(runs)
     mj, mj_self = best["mujoco"], best["mujoco_self"]
-    paths = [(name, best[name], target) for name, _, target in paths]
-    rows = [{"path": name, "us_per_step": 1e6 * t, "ratio_to_mujoco": t / mj, "target_ratio": target}
-            for name, t, target in paths]
+    rows = [{"path": name, "us_per_step": 1e6 * best[name], "ratio_to_mujoco": best[name] / mj, "target_ratio": target}
+            for name, _, target in paths]
     batch = [{"environments": n, "us_per_env_step": 1e6 * time_batch(model, table, n)} for n in (16, 64, 256)]
     lines = [f"10 s of 0.5 Hz sidewinding at dt = {DT * 1e3:g} ms, best of {REPEATS} rounds (each path once per "
              "round, in turn, MuJoCo's among them); MuJoCo: same URDF, "
