@@ -146,7 +146,7 @@ def _mujoco_fit(doc: dict) -> list[tuple[str, str, str]]:
     how = ", then refitted with each channel weighted by its RMS residual" if refit else ""
     if any(r.get("step_s") for r in rows):
         how += (", physics step resolving each fitted contact "
-                f"(>= {doc['meta'].get('steps_per_contact_time_constant', 4)} steps per time constant)")
+                f"(>= {doc['meta']['steps_per_contact_time_constant']} steps per time constant)")
     fixed = ""
     if refit:
         floor = doc["meta"]["joint_bound_factor"] * doc["meta"]["joint_floor_rad"]

@@ -54,8 +54,9 @@ Progress goes to stderr; results to ``benchmarks/results/mujoco_fit.{json,md}``.
 Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--seeds 101,102,103]
 [--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint,soft_elliptic]
 [--channel-weights fixed|residual] [--name STEM]``. The README quotes
-``results/mujoco_fit_residual.md`` (``make bench``: twin, elliptic_soft and stiff, the two soft
-laws, residual weights).
+``results/mujoco_fit_residual.md`` (``make bench``: twin and elliptic_soft, the two soft laws,
+residual weights) and ``results/mujoco_fit_residual_stiff.md`` (the stiff configuration, the same
+method; two make lines, so that each half can be rerun in an hour or two).
 ``results/mujoco_fit.md`` (all five configurations, compliant and pyramid laws) and
 ``results/mujoco_fit_elliptic.md`` (the elliptic configurations, three laws) were measured with
 earlier soft laws and are kept as history.
@@ -182,12 +183,6 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
     return rows
 
 
-def steps_rule(meta: dict) -> int:
-    """The steps per soft-contact time constant the results in ``meta`` were measured with (the
-    files written before the rule was recorded: four, the rule of then)."""
-    return meta.get("steps_per_contact_time_constant", 4)
-
-
 def markdown(rows: list[dict], meta: dict) -> str:
     """The per-gait table, the pass counts and the interval coverage."""
     starts = sorted({s["contact_rounding"] for f in rows[0]["choice"]["fits"] for s in f["starts"]})
@@ -210,8 +205,8 @@ def markdown(rows: list[dict], meta: dict) -> str:
                 f"(each start screened on the first {SCREEN_HORIZON_S:g} s, the {WHOLE_RUN_FITS} lowest fitted on "
                 f"the whole runs)" if stiffness else "") + " (the lowest training cost kept), "
              f"the law with the lower cost on three validation runs chosen{refit}; physics step 1 ms, or the "
-             f"fraction of it that gives a fitted soft contact {steps_rule(meta)} steps per time "
-             f"constant{chosen_steps}. Bounds: held-out final head error "
+             f"fraction of it that gives a fitted soft contact {meta['steps_per_contact_time_constant']} steps "
+             f"per time constant{chosen_steps}. Bounds: held-out final head error "
              f"<= {HEAD_BOUND_M * 100:g} cm, joint RMSE <= {JOINT_BOUND_FACTOR:g} x floor "
              f"({JOINT_FLOOR_RAD * 1e3:.3f} mrad).", "",
              "| config | seed | heading [rad] | gait [Hz] | head final: nominal [m] | "
