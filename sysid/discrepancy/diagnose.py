@@ -353,6 +353,13 @@ DEMAND_PROFILE_FRACTIONS: tuple[float, ...] = (0.9, 0.8, 0.7, 0.6, 0.5, 0.4)
 #: Longest stretch of each run [s] that the screening (grid, profiles, candidate refits and
 #: their training costs) uses; the held-out comparison always uses the whole runs.
 SCREEN_HORIZON_S = 6.0
+#: Longest stretch of each run [s] on which a profile (:func:`_profiles`) ranks the starts of a
+#: candidate's refit; the profile's best point is then costed on :data:`SCREEN_HORIZON_S` to
+#: compete with the grid's starts. Physical reason: a profile only chooses where a refit starts,
+#: and whether an effect's value bends the joints shows within the first gait cycle after the
+#: 1 s smooth start (1-1.3 cycles at 0.5-0.65 Hz); the refits and the judgement use the longer
+#: stretches and the whole runs.
+PROFILE_HORIZON_S = 3.0
 
 
 def _capped(objective: Objective, horizon_s: float = SCREEN_HORIZON_S) -> Objective:
@@ -421,13 +428,14 @@ PROFILE_DAMPINGS: tuple[float, ...] = (1e-2, 1e-1, 1.0)
 def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: Sequence[Run],
               weights: Weights = Weights()) -> Steps[tuple[np.ndarray, list[ModelParameters]]]:
     """One damped Gauss-Newton step of the other free parameters of ``trial`` with ``name`` held
-    at each of ``values`` (a profile): the best cost of each on ``runs`` and its parameters.
+    at each of ``values`` (a profile): the best cost of each on ``runs`` (their first
+    :data:`PROFILE_HORIZON_S`) and its parameters.
 
     Batched: the finite-difference Jacobians at every value are one evaluation and the steps
     at every value and damping (:data:`PROFILE_DAMPINGS`) another (requests of a computation,
     :mod:`sysid.identification.lockstep`).
     """
-    objective = _capped(Objective(runs, trial, weights))
+    objective = _capped(Objective(runs, trial, weights), PROFILE_HORIZON_S)
     free = list(trial.free_names)
     k = free.index(name)
     others = [i for i in range(len(free)) if i != k]
@@ -496,9 +504,10 @@ def screening_start(effect: Effect, current: ModelParameters, before: ModelParam
       does not reach it.
 
     A torque limit's values are fractions of what each base demands (:func:`torque_demand`).
-    The start of lowest cost on ``runs`` (their first :data:`SCREEN_HORIZON_S`) wins. Grid
-    values at which the effect changes nothing (a limit above what the gait demands) are
-    profiled once.
+    The start of lowest cost on ``runs`` (their first :data:`SCREEN_HORIZON_S`) wins: the
+    profiles rank their points on a shorter stretch (:data:`PROFILE_HORIZON_S`) and their best
+    is costed on the screening's. Grid values at which the effect changes nothing (a limit
+    above what the gait demands) are profiled once.
     """
     name = effect.parameter.name
     base = unbent(effect, current, before)
@@ -512,13 +521,16 @@ def screening_start(effect: Effect, current: ModelParameters, before: ModelParam
     best, best_cost = trial.with_values(**{name: values[k]}), costs[k]
     coarse = start_grid(effect, demand_nm=demands[1], coarse=True)
     unbent_trial = library.transform(base, {effect.name: coarse[0]})
-    raw = yield from _cost_steps(_capped(Objective(runs, unbent_trial, weights)),
-                                 np.array([unbent_trial.with_values(**{name: v}).as_vector() for v in coarse]))
+    screen = _capped(Objective(runs, unbent_trial, weights))
+    raw = yield from _cost_steps(screen, np.array([unbent_trial.with_values(**{name: v}).as_vector() for v in coarse]))
     distinct = [v for n, v in enumerate(coarse) if np.isfinite(raw[n]) and raw[n] not in set(raw[:n])]
     if distinct:
         profiled, params = yield from _profiles(unbent_trial, name, distinct, runs, weights)
         j = int(np.argmin(profiled))
-        if profiled[j] < best_cost:
+        cost = profiled[j]
+        if screen.longest_run_s > PROFILE_HORIZON_S and np.isfinite(cost):
+            cost = (yield from _cost_steps(screen, params[j].as_vector()[None]))[0]
+        if cost < best_cost:
             best = params[j]
     return best
 
