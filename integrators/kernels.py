@@ -230,26 +230,6 @@ def cone_weights(v1: float, v2: float, eps: float, cone: float):
 
 
 @njit(cache=True)
-def friction_sign(v: float, eps: float) -> float:
-    """The sign of a slip velocity ``v`` [m/s] as the ground's Coulomb and Stribeck terms use it:
-    ``v / eps`` clipped to [-1, 1], exactly ``sign(v)`` from ``eps`` [m/s] up.
-
-    Why a ramp and not ``tanh(v / eps)``: a ``tanh`` is still 1 % short of the sign at 2.65
-    ``eps``, so it blurs the Stribeck curve over a band of speeds where ``v_s`` is to be fitted;
-    the ramp is exact outside ``[-eps, eps]``, with the slope ``1 / eps`` that ``tanh`` has at
-    zero. Below ``eps`` the model is not faithful to a
-    Stribeck curve (the contact creeps instead of sticking): ``SimSettings.sgn_eps`` is below
-    the lower bound of ``v_s``.
-    """
-    x = v / eps
-    if x > 1.0:
-        return 1.0
-    if x < -1.0:
-        return -1.0
-    return x
-
-
-@njit(cache=True)
 def ground_tangent(R, b):
     """The contact frame's first axis ``t1`` (x, y) on the ground: body ``b``'s x axis projected
     on the ground and normalised (world x for a body standing upright); ``t2 = z x t1``."""
@@ -279,10 +259,9 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
     ``s`` multiplied by ``ground[G_LATERAL]`` (1 = isotropic, the paper's model), and each
     Coulomb/Stribeck term weighted by :func:`cone_weights` with the friction-cone shape
     ``ground[G_CONE]`` (0 = the paper's per-component law).
-    ``sgn_eps(x)`` is :func:`friction_sign`, a linear ramp saturated at ``eps`` [m/s]: from
-    ``eps`` up the law is the Stribeck curve exactly; below it friction acts as a viscous damper
-    of slope ``s F_z / eps``, so a contact loaded tangentially below its friction limit creeps
-    at about ``eps F_t / (s F_z)``.
+    ``sgn_eps(x) = tanh(x / eps)``: below ``eps`` [m/s] friction acts as a viscous damper of
+    slope ``s F_z / eps``, so a contact loaded tangentially below its friction limit creeps at
+    about ``eps F_t / (s F_z)``; eps bounds the stiffness the explicit step must resolve.
     The frame is the body's so that the law does not depend on the robot's world heading.
 
     Returns:
@@ -343,8 +322,8 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
         s1 = mu_c - (mu_c - mu_s) * np.exp(-(v1 / v_s) ** 2)
         s2 = lateral * (mu_c - (mu_c - mu_s) * np.exp(-(v2 / v_s) ** 2))
         w1, w2 = cone_weights(v1, v2, eps, cone)
-        f1 = -s1 * fz * w1 * friction_sign(v1, eps) - mu_v * v1
-        f2 = -s2 * fz * w2 * friction_sign(v2, eps) - mu_v * v2
+        f1 = -s1 * fz * w1 * np.tanh(v1 / eps) - mu_v * v1
+        f2 = -s2 * fz * w2 * np.tanh(v2 / eps) - mu_v * v2
         fx = f1 * t1x - f2 * t1y
         fy = f1 * t1y + f2 * t1x
         F[k, 0], F[k, 1], F[k, 2] = fx, fy, fz

@@ -10,7 +10,7 @@ One physics step of length ``dt``::
 All forces are evaluated explicitly at (q, v); the step is the symplectic Euler of the issue,
 with no implicit treatment. What bounds the stable step is the stiffest dissipative term, the
 regularised Coulomb friction ``s F_z / eps`` (see ``integrators.kernels.ground_forces``),
-whose saturated sign caps it; the springs and dampers that do bound it are the ground's normal
+whose ``tanh`` caps it; the springs and dampers that do bound it are the ground's normal
 contact, the motor's back-EMF damping (every step) and the servo loop (every tick):
 :mod:`integrators.stability` gives the largest stable ``dt`` and ``control_dt`` for a model
 and parameter set. At ``dt = 1 ms`` the step is stable over the ground parameters' bounds, but
@@ -173,9 +173,7 @@ class SimSettings:
         control_dt: servo position-loop period [s], an integer multiple of ``dt``.
         gains: servo position-loop gains.
         voltage: motor supply voltage [V].
-        sgn_eps: the compliant ground's friction sign regularisation velocity [m/s]
-            (``kernels.friction_sign``): the law is the Stribeck curve exactly above it and a
-            viscous creep below it; 2.5 mm/s, half the lower bound of ``v_s``.
+        sgn_eps: friction sign regularisation velocity [m/s] (see ``ground_forces``).
         joint_coulomb_eps: joint Coulomb friction regularisation [rad/s].
         max_depth: penetration [m] beyond which the run is declared diverged.
         max_speed: generalized speed [m/s or rad/s] beyond which the run is declared diverged.
@@ -188,7 +186,7 @@ class SimSettings:
     control_dt: float = 1e-3
     gains: ServoGains = field(default_factory=ServoGains)
     voltage: float = servo.SUPPLY_VOLTAGE_V
-    sgn_eps: float = 0.0025
+    sgn_eps: float = 0.01
     joint_coulomb_eps: float = 0.05
     max_depth: float = 0.03
     max_speed: float = 100.0

@@ -23,8 +23,8 @@ servo holds its PWM duty, is bounded by the servo's spring and damping on that j
 :func:`check_steps` allows :data:`MARGIN` of these limits.
 
 The friction's regularised sign is not a limit of this kind: its slope ``s F_z / eps`` can exceed
-``2 m / h``, but the sign saturates (``kernels.friction_sign``) and caps the force at ``s F_z``,
-so an overshoot stays a bounded chatter of about ``eps h``-sized slips instead of growing.
+``2 m / h``, but the ``tanh`` caps the force at ``s F_z``, so an overshoot stays a bounded chatter
+of about ``eps h``-sized slips instead of growing.
 """
 from __future__ import annotations
 

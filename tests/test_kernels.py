@@ -119,47 +119,6 @@ def test_cone_weights_put_the_full_slip_force_on_the_limit_surface(angle):
     assert w1 > 0.99 and w2 < 1e-4
 
 
-def test_friction_sign_is_exact_from_the_creep_speed_up():
-    """The regularised sign is sign(v) outside [-eps, eps] and a ramp of slope 1/eps inside."""
-    eps = 0.0025
-    for v in (eps, 1.0000001 * eps, 0.005, 0.05, 3.0):
-        assert K.friction_sign(v, eps) == 1.0 and K.friction_sign(-v, eps) == -1.0
-    assert K.friction_sign(0.0, eps) == 0.0
-    assert K.friction_sign(0.4 * eps, eps) == pytest.approx(0.4, abs=1e-15)
-
-
-def test_ground_follows_the_stribeck_curve_above_the_creep_speed(cobra):
-    """Straight robot pressed into the ground and sliding along its axis at speed ``u``: every
-    touching contact's friction is the paper's Stribeck law exactly
-    (``-(mu_c - (mu_c - mu_s) exp(-u^2 / v_s^2)) F_z - mu_v u``) from ``sgn_eps`` up, and that
-    speed is below the lower bound of ``v_s``, so no fitted ``v_s`` is blurred by the
-    regularisation. Below it the contact creeps: less friction than the curve."""
-    params = ModelParameters.nominal().with_values(v_s=0.005)
-    sim = Simulator(cobra, params)
-    eps = sim.ground[K.G_EPS]
-    assert eps < params["v_s"].min
-    q = cobra.on_ground(cobra.configuration())
-    q[2] -= 0.002
-    data = cobra.pin_model.createData()
-    pin.forwardKinematics(cobra.pin_model, data, q)
-    assert all(np.allclose(data.oMi[j].rotation, np.eye(3)) for j in range(1, cobra.pin_model.njoints))
-    mu_c, mu_s, mu_v = params.value("mu_c"), params.value("mu_s"), params.value("mu_v")
-    for u in (eps, 0.004, 0.005, 0.0075, 0.02, 0.1):
-        v = np.zeros(cobra.nv)
-        v[0] = u
-        _, _, _, F = _forces(sim, q, v)
-        touching = F[:, 2] > 0
-        assert touching.sum() >= 4
-        stribeck = -(mu_c - (mu_c - mu_s) * np.exp(-(u / 0.005) ** 2)) * F[touching, 2] - mu_v * u
-        assert np.allclose(F[touching, 0], stribeck, rtol=1e-12, atol=1e-12)
-        assert np.all(F[touching, 1] == 0.0)
-    v = np.zeros(cobra.nv)
-    v[0] = 0.5 * eps
-    _, _, _, F = _forces(sim, q, v)
-    touching = F[:, 2] > 0
-    assert np.all(np.abs(F[touching, 0]) < mu_s * F[touching, 2])
-
-
 def test_friction_cone_zero_is_the_paper_law(cobra):
     rng = np.random.default_rng(9)
     box = Simulator(cobra)
