@@ -265,9 +265,7 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   steps) and a soft contact gets eight steps per time constant, not four (a stiff contact's
 #:   runs and every soft-law fit screened from the stiff 2 ms start; CHANGELOG "twenty-eighth stop").
 #: - The diagnosis's profiles rank their points on each run's first 3 s (``PROFILE_HORIZON_S``;
-#:   runs longer than 3 s only) and the compliant ground's friction sign is a ramp saturated at
-#:   2.5 mm/s, was ``tanh(v / 1 cm/s)`` (every compliant-law figure and the shipped reference
-#:   dataset; CHANGELOG "thirty-first stop").
+#:   diagnoses of runs longer than 3 s only; CHANGELOG "thirty-first stop").
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -296,10 +294,6 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-28T01:53", "f2e4155", "6 s profiles",
      ("diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current", "mujoco_robustness_stiff",
       "mujoco_robustness_stiff_current", "mujoco_robustness_soft_constraint")),
-    ("2026-11-28T02:53", "246cd0d", "friction sign tanh(v / 1 cm/s)",
-     ("sim_speed", "fit_speed", "diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_choose",
-      "effect_signal", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current", "mujoco_robustness_stiff",
-      "mujoco_robustness_stiff_current", "contact_time_constant", "contact_law", "coverage")),
 )
 
 
