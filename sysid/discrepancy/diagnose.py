@@ -425,17 +425,18 @@ def _cost_steps(objective: Objective, X: np.ndarray) -> Steps[np.ndarray]:
 PROFILE_DAMPINGS: tuple[float, ...] = (1e-2, 1e-1, 1.0)
 
 
-def _profiles(trial: ModelParameters, name: str, values: Sequence[float], runs: Sequence[Run],
-              weights: Weights = Weights()) -> Steps[tuple[np.ndarray, list[ModelParameters]]]:
-    """One damped Gauss-Newton step of the other free parameters of ``trial`` with ``name`` held
-    at each of ``values`` (a profile): the best cost of each on ``runs`` (their first
-    :data:`PROFILE_HORIZON_S`) and its parameters.
+def _profiles(screen: Objective, name: str, values: Sequence[float]
+              ) -> Steps[tuple[np.ndarray, list[ModelParameters]]]:
+    """One damped Gauss-Newton step of the other free parameters of ``screen.params`` with
+    ``name`` held at each of ``values`` (a profile): the best cost of each on the screening's
+    runs (their first :data:`PROFILE_HORIZON_S`) and its parameters.
 
     Batched: the finite-difference Jacobians at every value are one evaluation and the steps
     at every value and damping (:data:`PROFILE_DAMPINGS`) another (requests of a computation,
     :mod:`sysid.identification.lockstep`).
     """
-    objective = _capped(Objective(runs, trial, weights), PROFILE_HORIZON_S)
+    objective = _capped(screen, PROFILE_HORIZON_S)
+    trial = screen.params
     free = list(trial.free_names)
     k = free.index(name)
     others = [i for i in range(len(free)) if i != k]
@@ -525,7 +526,7 @@ def screening_start(effect: Effect, current: ModelParameters, before: ModelParam
     raw = yield from _cost_steps(screen, np.array([unbent_trial.with_values(**{name: v}).as_vector() for v in coarse]))
     distinct = [v for n, v in enumerate(coarse) if np.isfinite(raw[n]) and raw[n] not in set(raw[:n])]
     if distinct:
-        profiled, params = yield from _profiles(unbent_trial, name, distinct, runs, weights)
+        profiled, params = yield from _profiles(screen, name, distinct)
         j = int(np.argmin(profiled))
         cost = profiled[j]
         if screen.longest_run_s > PROFILE_HORIZON_S and np.isfinite(cost):
