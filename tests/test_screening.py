@@ -7,7 +7,8 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.generators.dataset import RunPlan, record
-from sysid.discrepancy.diagnose import _cost_steps, screening_start, torque_demand, unbent
+from sysid.discrepancy.diagnose import (PROFILE_HORIZON_S, SCREEN_HORIZON_S, _capped, _cost_steps, screening_start,
+                                        torque_demand, unbent)
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.identification.lockstep import run
 from sysid.identification.lsq import fit_lsq
@@ -101,3 +102,19 @@ def test_a_diverging_row_costs_infinity_and_leaves_the_others_as_evaluated_alone
     # the reward terms (PPO's) the same way: None for the diverging row
     masked = objective.terms(np.array([wild, healthy[0]]), divergence="mask")
     assert masked[0] is None and masked[1] == objective.terms(healthy[0][None])[0]
+
+
+def test_the_profiles_stretch_cut_from_the_screenings_is_the_stretch_cut_from_the_whole_runs():
+    """The profiles cap the screening's objective (each run's first 6 s) to its first 3 s: the
+    same samples, so the same residuals bit for bit, as capping the whole runs to 3 s."""
+    model = CobraModel.load()
+    rng = np.random.default_rng(8)
+    runs = [record(Simulator(model, TRUTH), RunPlan("long", 0.5, SCREEN_HORIZON_S + 1.0, (0.0, 0.0), 0.3, "train"),
+                   rng, model)]
+    whole = Objective(runs, NOMINAL, threads=1)
+    screen = _capped(whole)
+    assert whole.longest_run_s > SCREEN_HORIZON_S >= screen.longest_run_s > PROFILE_HORIZON_S
+    X = np.array([NOMINAL.as_vector(), TRUTH.as_vector()])
+    from_screen, from_whole = _capped(screen, PROFILE_HORIZON_S), _capped(whole, PROFILE_HORIZON_S)
+    assert from_screen.longest_run_s == from_whole.longest_run_s <= PROFILE_HORIZON_S
+    assert np.array_equal(from_screen.residuals(X), from_whole.residuals(X))
