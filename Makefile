@@ -43,6 +43,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law choose
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint --mujoco-contact stiff
 	$(PY) benchmarks/effect_signal.py
+	$(PY) benchmarks/channel_weighting.py
 	$(PY) benchmarks/contact_time_constant.py
 	$(PY) benchmarks/contact_law.py
 	$(PY) benchmarks/contact_step.py
