@@ -40,7 +40,6 @@ Run: ``.venv/bin/python benchmarks/channel_weighting.py [--seeds 31,32,33] [--ca
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
 from pathlib import Path
@@ -51,16 +50,18 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._args import number_list  # noqa: E402
 from benchmarks._results import write_results  # noqa: E402
-from benchmarks.diagnose_matrix import ERROR, EVAL_SEEDS, FREE_MUJOCO, FREE_SIM, Job, make_runs  # noqa: E402
+from benchmarks.diagnose_matrix import ERROR, EVAL_SEEDS, FREE_MUJOCO, FREE_SIM, Job, law_start, make_runs  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from sysid.discrepancy.diagnose import balanced_weights  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
-from sysid.identification.contact_choice import fit_from_shapes, free_for_law  # noqa: E402
+from sysid.identification.contact_choice import fit_from_shapes  # noqa: E402
 from sysid.identification.lsq import FitResult, fit_lsq, fit_lsq_steps  # noqa: E402
 from sysid.identification.objective import Objective, Weights  # noqa: E402
 
 EFFECT = "joint_coulomb_friction"
 MAGNITUDE = 0.3
+#: Length of each run [s] (the confusion matrix's).
+DURATION_S = 3.0
 #: The effect's parameter's start [N m]: half the hidden value (the fit knows the effect is there).
 START = 0.5 * MAGNITUDE
 #: Least-squares iterations of each fit (the diagnosis's base and final fits: 6 and 15).
@@ -85,7 +86,7 @@ def fits(runs: list, start: ModelParameters) -> dict[str, FitResult]:
     x = fixed.params.as_vector()
     at_fixed = Objective(runs, fixed.params)
     weights = {"balanced": balanced_weights(at_fixed, x), "residual": at_fixed.residual_weights(x),
-               "joints": dataclasses.replace(Weights(), head_scale_m=NO_HEAD_SCALE_M)}
+               "joints": Weights(head_scale_m=NO_HEAD_SCALE_M)}
     out = {"fixed": fixed}
     for name, w in weights.items():
         out[name] = fit_lsq(Objective(runs, fixed.params, w), max_iterations=ITERATIONS, horizons_s=())
@@ -106,6 +107,11 @@ def row(case: str, seed: int, weighting: str, fit: FitResult, seconds: float) ->
             "status": fit.status.value, "seconds": seconds}
 
 
+def cell(rows: list[dict], case: str, weighting: str) -> list[dict]:
+    """The rows of ``case`` fitted under ``weighting`` (one per seed)."""
+    return [r for r in rows if (r["case"], r["weighting"]) == (case, weighting)]
+
+
 def plot(rows: list[dict], path: Path) -> None:
     """Each joint-side value fitted (one dot per seed) by case and weighting, its truth dashed."""
     import matplotlib
@@ -117,7 +123,7 @@ def plot(rows: list[dict], path: Path) -> None:
     for ax, (name, truth) in zip(axes, TRUTH.items()):
         for k, case in enumerate(cases):
             for j, weighting in enumerate(WEIGHTINGS):
-                v = [r["values"][name]["value"] for r in rows if (r["case"], r["weighting"]) == (case, weighting)]
+                v = [r["values"][name]["value"] for r in cell(rows, case, weighting)]
                 ax.plot(np.full(len(v), k + (j - 1.5) * 0.18), v, "o", color=f"C{j}", ms=4,
                         label=weighting if k == 0 else None)
         ax.axhline(truth, color="k", ls="--", lw=1, label="truth")
@@ -146,10 +152,9 @@ def main(argv: list[str] | None = None) -> None:
     t_start = time.perf_counter()
     for case, engine, contact, law in (c for c in CASES if c[0] in names):
         free = FREE_SIM if engine == "sim" else FREE_MUJOCO
-        base = free_for_law(ModelParameters.nominal().with_contact_law(law).with_frozen(free=free))[0]
-        start = library.transform(base, {EFFECT: START})
+        start = library.transform(law_start(law, free), {EFFECT: START})
         for seed in seeds:
-            job = Job(engine, EFFECT, MAGNITUDE, "realistic", seed, 3.0, contact_law=law,
+            job = Job(engine, EFFECT, MAGNITUDE, "realistic", seed, DURATION_S, contact_law=law,
                       mujoco_contact=contact if engine == "mujoco" else None)
             t0 = time.perf_counter()
             runs = make_runs(job, model)[:2]
@@ -163,15 +168,16 @@ def main(argv: list[str] | None = None) -> None:
     lines = [f"`{EFFECT}` hidden at {MAGNITUDE} N m (MuJoCo: joint `frictionloss`), fitted with the effect's "
              f"parameter free from {START} N m together with the case's free set (the confusion matrix's: "
              f"{', '.join(FREE_SIM)} on this simulator's runs; {', '.join(FREE_MUJOCO)} and the law's own ground "
-             f"parameters on MuJoCo's) on two 3 s training runs of `diagnose_matrix.py`'s design, seeds "
+             f"parameters on MuJoCo's) on two {DURATION_S:g} s training runs of `diagnose_matrix.py`'s design, seeds "
              f"{', '.join(map(str, seeds))}. Each cell: the fitted values' range over the seeds, and in how many "
              f"seeds the 95 % interval holds the truth.", "",
              "| case | weighting | joint_coulomb [N m] (truth 0.3) | holds | joint_damping [N m s/rad] (truth "
              f"{TRUTH['joint_damping']}) | holds | motor_km [N m/A] (truth {TRUTH['motor_km']}) | holds |",
              "|---|---|---|---:|---|---:|---|---:|"]
-    for case in dict.fromkeys(r["case"] for r in rows):
+    cases = list(dict.fromkeys(r["case"] for r in rows))
+    for case in cases:
         for weighting in WEIGHTINGS:
-            sel = [r for r in rows if (r["case"], r["weighting"]) == (case, weighting)]
+            sel = cell(rows, case, weighting)
             cells = []
             for name in TRUTH:
                 v = [r["values"][name]["value"] for r in sel]
@@ -180,13 +186,12 @@ def main(argv: list[str] | None = None) -> None:
                 cells += [f"{min(v):.4g}-{max(v):.4g}" + (f" ({bound} at a bound)" if bound else ""),
                           f"{held}/{len(sel)}"]
             lines.append(f"| {case} | {weighting} | " + " | ".join(cells) + " |")
-    mean_abs = {(c, w): float(np.mean([abs(r["values"]["joint_coulomb"]["error"]) for r in rows
-                                       if (r["case"], r["weighting"]) == (c, w)]))
-                for c in dict.fromkeys(r["case"] for r in rows) for w in WEIGHTINGS}
+    mean_abs = {(c, w): float(np.mean([abs(r["values"]["joint_coulomb"]["error"]) for r in cell(rows, c, w)]))
+                for c in cases for w in WEIGHTINGS}
     lines += ["", "![Joint-side values fitted under each weighting](channel_weighting.png)", "",
               "Mean |relative error| of `joint_coulomb` by case and weighting: "
               + "; ".join(f"{c}: " + ", ".join(f"{w} {100 * mean_abs[(c, w)]:.0f} %" for w in WEIGHTINGS)
-                          for c in dict.fromkeys(r["case"] for r in rows)) + "."]
+                          for c in cases) + "."]
     meta = {"effect": EFFECT, "magnitude": MAGNITUDE, "start": START, "iterations": ITERATIONS, "seeds": seeds,
             "cases": names, "weightings": list(WEIGHTINGS), "truth": TRUTH, "error": ERROR,
             "development_seeds": [], "seconds": time.perf_counter() - t_start}
