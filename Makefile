@@ -20,8 +20,11 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/cobra demo --force  # refreshes its own plots in out/demo
 
+# Two pytest workers, each test file on one (its module fixtures are built once); a worker's
+# batched rollouts keep their two threads. On 2 cores: 10:02 against 11:51 in one process.
+TEST_WORKERS ?= 2
 test: $(STAMP)
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 # Every benchmark, one after another (never two at once: they time themselves). Hours in all:
 # the MuJoCo fits and the diagnosis accuracy dominate. Each writes its table to benchmarks/results/.
