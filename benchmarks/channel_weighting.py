@@ -50,11 +50,11 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._args import number_list  # noqa: E402
 from benchmarks._results import write_results  # noqa: E402
-from benchmarks.diagnose_matrix import ERROR, EVAL_SEEDS, FREE_MUJOCO, FREE_SIM, Job, law_start, make_runs  # noqa: E402
+from benchmarks.diagnose_matrix import ERROR, EVAL_SEEDS, FREE_MUJOCO, FREE_SIM, Job, make_runs  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from sysid.discrepancy.diagnose import balanced_weights  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
-from sysid.identification.contact_choice import fit_from_shapes  # noqa: E402
+from sysid.identification.contact_choice import fit_from_shapes, nominal_start  # noqa: E402
 from sysid.identification.lsq import FitResult, fit_lsq, fit_lsq_steps  # noqa: E402
 from sysid.identification.objective import Objective, Weights  # noqa: E402
 
@@ -152,7 +152,7 @@ def main(argv: list[str] | None = None) -> None:
     t_start = time.perf_counter()
     for case, engine, contact, law in (c for c in CASES if c[0] in names):
         free = FREE_SIM if engine == "sim" else FREE_MUJOCO
-        start = library.transform(law_start(law, free), {EFFECT: START})
+        start = library.transform(nominal_start(law, free), {EFFECT: START})
         for seed in seeds:
             job = Job(engine, EFFECT, MAGNITUDE, "realistic", seed, DURATION_S, contact_law=law,
                       mujoco_contact=contact if engine == "mujoco" else None)

@@ -79,7 +79,7 @@ from integrators.simulator import Simulator  # noqa: E402
 from sysid.generators.dataset import RunPlan, record  # noqa: E402
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose, torque_demand  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
-from sysid.identification.contact_choice import free_for_law  # noqa: E402
+from sysid.identification.contact_choice import nominal_start  # noqa: E402
 from sysid.identification.executor import make_executor  # noqa: E402
 from sysid.generators.mujoco_recording import (contact_configurations, describe, record_mujoco,  # noqa: E402
                                                twin_options)
@@ -164,12 +164,6 @@ def near_limit(effect: str, duration_s: float) -> float:
     return round(onset + NEAR_LIMIT_FRACTION * (spec.realistic - onset), 2)
 
 
-def law_start(law: str, free: list[str]) -> ModelParameters:
-    """The nominal parameters under contact ``law`` with ``free`` free, then the law's own ground
-    parameters freed and those it does not read frozen (as ``cobra diagnose --contact``)."""
-    return free_for_law(ModelParameters.nominal().with_contact_law(law).with_frozen(free=free))[0]
-
-
 def run_job(job: Job) -> dict[str, Any]:
     """Diagnose one dataset; the row of the results."""
     model = CobraModel.load()
@@ -177,7 +171,7 @@ def run_job(job: Job) -> dict[str, Any]:
     free = FREE_SIM if job.engine == "sim" else FREE_MUJOCO
     # the law's own ground parameters free, those it does not read frozen (as `cobra diagnose --contact`);
     # "choose": the base model fitted under every law, the lower held-out cost kept
-    starts = {law: law_start(law, free)
+    starts = {law: nominal_start(law, free)
               for law in (CONTACT_LAWS if job.contact_law == "choose" else (job.contact_law,))}
     config = DiagnoseConfig(max_effects=max(1, len(job.hidden)))
     t0 = time.perf_counter()

@@ -72,7 +72,7 @@ from sysid.generators.dataset import RunPlan
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.gap.metrics import compare_runs
-from sysid.identification.contact_choice import free_for_law
+from sysid.identification.contact_choice import nominal_start
 from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_options
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
@@ -174,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.effect_sizes:
         effect_sizes(chosen, cases, base, truth, args.duration, model)
         return 0
-    start = free_for_law(ModelParameters.nominal().with_contact_law(args.contact_law).with_frozen(free=FREE))[0]
+    start = nominal_start(args.contact_law, FREE)
     rows: list[dict] = []
     for seed in seeds:
         for case in chosen:

@@ -87,6 +87,12 @@ def free_for_law(params: ModelParameters) -> tuple[ModelParameters, str | None]:
     return adapted, f"{params.contact_law} contact law: {'; '.join(parts)}"
 
 
+def nominal_start(law: str, free: Sequence[str]) -> ModelParameters:
+    """The nominal parameters under contact ``law`` with ``free`` free, then fitted to the law by
+    :func:`free_for_law` (as ``cobra diagnose --contact``): the benchmarks' start of every fit."""
+    return free_for_law(ModelParameters.nominal().with_contact_law(law).with_frozen(free=list(free)))[0]
+
+
 #: Whole-run fits at most per law: the starts with the lowest cost after :data:`SCREEN_HORIZON_S`
 #: go on (as many as the shapes of the ends, so a second stiffness adds only screening).
 WHOLE_RUN_FITS = len(ROUNDING_STARTS_M)
