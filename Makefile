@@ -21,7 +21,7 @@ demo: $(STAMP)
 	$(VENV)/bin/cobra demo --force  # refreshes its own plots in out/demo
 
 # Two pytest workers, each test file on one (its module fixtures are built once); a worker's
-# batched rollouts keep their two threads. On 2 cores: 10:02 against 11:51 in one process.
+# batched rollouts keep their two threads, so the threaded batch paths stay under test.
 TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile
