@@ -51,7 +51,8 @@ fits it as a third channel (``DiagnoseConfig.use_current``); results ``..._curre
 
 Usage: ``python benchmarks/diagnose_matrix.py [--engines sim,mujoco] [--effects ...]
 [--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--no-pairs]
-[--mujoco-contact-law compliant|soft_constraint|choose] [--mujoco-contact twin|stiff|...]
+[--mujoco-contact-law compliant|soft_constraint|soft_elliptic|choose] [--choose-among LAW,LAW]
+[--mujoco-contact twin|stiff|...]
 [--current] [--executor local|ray] [--resume]``.
 """
 from __future__ import annotations
@@ -115,6 +116,7 @@ class Job:
     seed: int
     duration_s: float
     contact_law: str = "compliant"  # the model's contact law in the diagnosis (its start and free set), or "choose"
+    laws: tuple[str, ...] = ()  # with contact_law "choose": the laws the diagnosis chooses among
     mujoco_contact: str | None = "twin"  # MuJoCo's contact configuration (MUJOCO_CONTACTS); None for this simulator's
     current: bool = False  # the runs log the motor currents, which the diagnosis then fits
 
@@ -171,8 +173,7 @@ def run_job(job: Job) -> dict[str, Any]:
     free = FREE_SIM if job.engine == "sim" else FREE_MUJOCO
     # the law's own ground parameters free, those it does not read frozen (as `cobra diagnose --contact`);
     # "choose": the base model fitted under every law, the lower held-out cost kept
-    starts = {law: nominal_start(law, free)
-              for law in (CONTACT_LAWS if job.contact_law == "choose" else (job.contact_law,))}
+    starts = {law: nominal_start(law, free) for law in (job.laws if job.contact_law == "choose" else (job.contact_law,))}
     config = DiagnoseConfig(max_effects=max(1, len(job.hidden)))
     t0 = time.perf_counter()
     if job.contact_law == "choose":
@@ -184,6 +185,7 @@ def run_job(job: Job) -> dict[str, Any]:
     before, after = d.gap_before, d.gap_after
     return {"engine": job.engine, "effect": job.effect, "level": job.level, "magnitude": job.magnitude,
             "seed": job.seed, "contact_law": job.contact_law, "law_fitted": d.params_before.contact_law,
+            "laws": list(starts),
             "mujoco_contact": job.mujoco_contact, "current": job.current,
             "named": named[0] if named else None, "named_all": named,
             # each named effect's fitted value (parameter units): an effect named at its inactive value is no effect
@@ -200,15 +202,19 @@ def run_job(job: Job) -> dict[str, Any]:
 
 def job_key(row_or_job: Any) -> tuple:
     """What identifies a job (and the row it made): engine, effect, level, magnitude, seed, the
-    model's contact law, MuJoCo's contact configuration and whether the runs log motor currents
-    (rows written before these were recorded: compliant, twin, no currents)."""
+    model's contact law (with the laws a choice is among), MuJoCo's contact configuration and
+    whether the runs log motor currents (rows written before these were recorded: compliant,
+    twin, no currents; a choice without its laws: between compliant and soft_constraint)."""
     if isinstance(row_or_job, dict):
         get = row_or_job.get
         law, contact = row_or_job.get("contact_law", "compliant"), row_or_job.get("mujoco_contact") or "twin"
         current = row_or_job.get("current", False)
+        laws = tuple(row_or_job.get("laws") or ("compliant", "soft_constraint"))
     else:
         get, law, contact = (lambda k: getattr(row_or_job, k)), row_or_job.contact_law, row_or_job.mujoco_contact
-        current = row_or_job.current
+        current, laws = row_or_job.current, row_or_job.laws
+    if law == "choose":
+        law += ":" + ",".join(laws)
     return (get("engine"), get("effect"), get("level"), get("magnitude"), get("seed"), law,
             contact if get("engine") == "mujoco" else None, current)
 
@@ -236,11 +242,12 @@ def finished_rows(path: Path, duration_s: float) -> dict[tuple, dict[str, Any]]:
 
 def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: list[int], nulls: int,
              duration_s: float, pairs: bool = False, mujoco_law: str = "compliant",
-             mujoco_contact: str = "twin", current: bool = False) -> list[Job]:
+             mujoco_contact: str = "twin", current: bool = False, laws: tuple[str, ...] = CONTACT_LAWS) -> list[Job]:
     """Every (engine, effect, magnitude, seed) job, then ``nulls`` nulls per engine (seeds cycled),
     then with ``pairs`` every pair of the engine's effects hidden together at their realistic
     magnitudes, one dataset each (seeds cycled). MuJoCo's runs are made with its
-    ``mujoco_contact`` configuration and diagnosed with the model's ``mujoco_law``; this
+    ``mujoco_contact`` configuration and diagnosed with the model's ``mujoco_law`` (``"choose"``:
+    choosing among ``laws``); this
     simulator's with the law that made them (compliant). With ``current`` every run logs the
     motor currents (and the diagnosis fits them)."""
     library = EffectLibrary()
@@ -248,7 +255,7 @@ def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: l
     for engine in engines:
         mine = [e for e in effects if engine == "sim" or e in MUJOCO_OPTIONS]
         law = mujoco_law if engine == "mujoco" else "compliant"
-        job = functools.partial(Job, duration_s=duration_s, contact_law=law,
+        job = functools.partial(Job, duration_s=duration_s, contact_law=law, laws=laws if law == "choose" else (),
                                 mujoco_contact=mujoco_contact if engine == "mujoco" else None, current=current)
         for effect in mine:
             for level in levels:
@@ -296,11 +303,11 @@ def heatmap(rows: list[dict[str, Any]], engine: str, out: Path) -> Path:
 
 
 def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], mujoco_law: str = "compliant",
-             mujoco_contact: str = "twin", current: bool = False) -> str:
+             mujoco_contact: str = "twin", current: bool = False, laws: tuple[str, ...] = ()) -> str:
     lines = [f"Seeds {', '.join(map(str, seeds))} (developed on {', '.join(map(str, DEV_SEEDS))}); two 0.5/0.65 Hz "
              f"training runs and one 0.5 Hz held-out run per job; MuJoCo's runs made with its {mujoco_contact} "
              f"contact configuration ({describe(MUJOCO_CONTACTS[mujoco_contact])}) and diagnosed "
-             + ("under the contact law each diagnosis chose (in brackets)" if mujoco_law == "choose"
+             + (f"under the contact law each diagnosis chose among {', '.join(laws)} (in brackets)" if mujoco_law == "choose"
                 else f"with the {mujoco_law} contact law") + "."
              + (" Every run logs the motor currents (Present Current: 20 mA noise, 2.69 mA resolution), which "
                 "the diagnosis fits as a third channel." if current else ""), "",
@@ -342,9 +349,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--nulls", type=int, default=6, help="null datasets per engine (default 6)")
     parser.add_argument("--mujoco-contact-law", choices=(*CONTACT_LAWS, "choose"), default="compliant",
                         help="the model's contact law when diagnosing MuJoCo's runs (default compliant; 'choose': "
-                             "the diagnosis fits every law and keeps the lower held-out cost, as `cobra diagnose "
-                             "--contact choose`; with another than compliant, results go to "
-                             "diagnose_matrix_<law>.*)")
+                             "each diagnosis runs under every law of --choose-among and keeps the one whose final "
+                             "model has the lowest held-out cost, as `cobra diagnose --contact choose`; with another "
+                             "than compliant, results go to diagnose_matrix_<law>.*)")
+    parser.add_argument("--choose-among", default=",".join(CONTACT_LAWS),
+                        help="with --mujoco-contact-law choose: the laws chosen among, comma-separated (default all: "
+                             f"{','.join(CONTACT_LAWS)}; as `cobra diagnose --contact LAW,LAW`)")
     parser.add_argument("--mujoco-contact", choices=tuple(MUJOCO_CONTACTS), default="twin",
                         help="MuJoCo's contact configuration for its runs (default twin; another writes "
                              "diagnose_matrix_<law>_<configuration>.*)")
@@ -374,10 +384,15 @@ def main(argv: list[str] | None = None) -> int:
     if set(seeds) & set(DEV_SEEDS):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     law = args.mujoco_contact_law
+    among = tuple(dict.fromkeys(x.strip() for x in args.choose_among.split(",") if x.strip()))
+    if not among or set(among) - set(CONTACT_LAWS):
+        parser.error(f"--choose-among {args.choose_among!r}: expected contact laws among {', '.join(CONTACT_LAWS)}, "
+                     "comma-separated")
     contact = args.mujoco_contact
     name = "_".join(["diagnose_matrix"] + ([law] if law != "compliant" else []) + ([contact] if contact != "twin" else [])
                     + (["current"] if args.current else []))
-    jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration, args.pairs, law, contact, args.current)
+    jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration, args.pairs, law, contact, args.current,
+                    among)
     done = finished_rows(RESULTS_DIR / f"{name}.json", args.duration) if args.resume else {}
     done = {k: r for k, r in done.items() if k in {job_key(j) for j in jobs}}
     todo = [j for j in jobs if job_key(j) not in done]
@@ -396,15 +411,15 @@ def main(argv: list[str] | None = None) -> int:
               f"seed {r['seed']}: named {r['named'] or 'none'}", file=sys.stderr, flush=True)
         meta = {"engines": engines, "effects": effects, "magnitudes": levels, "seeds": seeds,
                 "dev_seeds": list(DEV_SEEDS), "nulls": args.nulls, "pairs": args.pairs, "duration_s": args.duration,
-                "mujoco_contact_law": law, "mujoco_contact_laws": list(CONTACT_LAWS) if law == "choose" else [law],
+                "mujoco_contact_law": law, "mujoco_contact_laws": list(among) if law == "choose" else [law],
                 "mujoco_contact": contact, "motor_currents": args.current,
                 "executor": args.executor,
                 "summary": [summary(rows, e) for e in engines]}
-        write_results(name, rows, meta, markdown(rows, engines, seeds, law, contact, args.current))
+        write_results(name, rows, meta, markdown(rows, engines, seeds, law, contact, args.current, among))
     executor.close()
     for engine in engines:
         heatmap(rows, engine, RESULTS_DIR / f"{name}_{engine}.png")
-    print(markdown(rows, engines, seeds, law, contact, args.current))
+    print(markdown(rows, engines, seeds, law, contact, args.current, among))
     return 0
 
 

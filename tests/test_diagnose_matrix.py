@@ -15,6 +15,7 @@ from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, MUJOCO_CONTACTS, MUJOC
 from benchmarks.effect_signal import ENCODER_FLOOR_RAD, HEAD_FLOOR_M, signal  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from cobra_model.errors import InputError  # noqa: E402
+from cobra_model.parameters import CONTACT_LAWS  # noqa: E402
 from sysid.discrepancy.diagnose import torque_demand  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.gap.plots import plot_confusion  # noqa: E402
@@ -81,6 +82,20 @@ def test_mujocos_runs_take_the_contact_law_asked_for_and_resume_tells_laws_apart
     mujoco = next(j for j in jobs if j.engine == "mujoco" and j.effect == "actuator_delay")
     assert job_key(mujoco) not in done  # a compliant row is no soft-constraint job
     assert job_key(jobs_for(["mujoco"], ["actuator_delay"], ["realistic"], [31], 0, 3.0)[0]) in done
+
+
+def test_a_choice_of_laws_is_among_the_laws_asked_for_and_resume_tells_choices_apart(tmp_path: Path) -> None:
+    two = ("compliant", "soft_constraint")
+    jobs = jobs_for(["sim", "mujoco"], ["actuator_delay"], ["realistic"], [31], 0, 3.0, mujoco_law="choose", laws=two)
+    assert {(j.engine, j.contact_law, j.laws) for j in jobs} == {("sim", "compliant", ()), ("mujoco", "choose", two)}
+    every = jobs_for(["mujoco"], ["actuator_delay"], ["realistic"], [31], 0, 3.0, mujoco_law="choose")[0]
+    assert every.laws == CONTACT_LAWS and job_key(every) != job_key(jobs[-1])
+    # a row written before the laws were recorded chose between the first two
+    old = {**_row("mujoco", "actuator_delay", "actuator_delay"), "magnitude": 0.04, "seed": 31, "contact_law": "choose"}
+    path = tmp_path / "diagnose_matrix_choose.json"
+    path.write_text(json.dumps({"meta": {"duration_s": 3.0}, "rows": [old]}))
+    done = finished_rows(path, 3.0)
+    assert job_key(jobs[-1]) in done and job_key(every) not in done
 
 
 def test_mujocos_runs_take_the_contact_configuration_asked_for_and_resume_tells_them_apart(tmp_path: Path) -> None:
