@@ -76,17 +76,44 @@ class BatchSimulator:
                          np.array([d.handle for d in self._native], dtype=np.intp))
         self._first = first
 
-    def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float, *,
+    def _distinct(self, Q: np.ndarray, V: np.ndarray, servo: np.ndarray, goal_index: np.ndarray,
+                  steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The environments that are distinct rollouts: ``(u, inverse)``, the index of the first
+        environment of each distinct rollout and, per environment, the position of its rollout
+        in ``u``. Two environments are one rollout when they share the rigid-body model (one
+        object per value: ``RobotModel.with_armature`` and ``with_link_mass`` are memoised), the
+        actuator and ground arrays, the initial configuration, velocity and servo state, the goal
+        sequence (its index: environments share a sequence by index, as `simulate_together` gives
+        them) and the number of steps; the step, gains and contact law are the batch's."""
+        first: dict[tuple, int] = {}
+        u, inverse = [], np.empty(len(self.sims), dtype=np.int64)
+        for e, sim in enumerate(self.sims):
+            key = (id(sim.model), self.act[e].tobytes(), self.ground[e].tobytes(), Q[e].tobytes(), V[e].tobytes(),
+                   servo[e].tobytes(), int(goal_index[e]), int(steps[e]))
+            if key not in first:
+                first[key] = len(u)
+                u.append(e)
+            inverse[e] = first[key]
+        return np.array(u, dtype=np.int64), inverse
+
+    def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float | Sequence[float], *,
                 record_every: int = 0, goal_index: np.ndarray | None = None, divergence: Divergence = "raise"
                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Step every environment for ``duration`` [s] with servo goals per control tick.
+
+        Environments with the same rigid-body model, actuator and ground parameters, initial
+        state, goal sequence and duration are one rollout: it runs once and its result is given
+        to each of them (every environment's arithmetic is a single rollout's, so the copies are
+        what each would have computed). Environments run in turn on the threads as they finish
+        (chunks of one), so that rollouts of different lengths share the threads evenly.
 
         Args:
             states: N initial states (their servo loops tick at step 0).
             goals: (n_ticks, G, n_joints) [rad] goal sequences (the last tick is held); environment
                 ``e`` follows sequence ``goal_index[e]`` (default: G = N, one sequence each).
             goal_index: (N,) int, which goal sequence each environment follows.
-            duration: simulated time [s].
+            duration: simulated time [s], one for all or (N,) one per environment; the records
+                of an environment after its own duration are NaN.
             record_every: record configurations and encoder readings every this many physics
                 steps (0: record only the final state).
             divergence: ``"raise"``: an environment that diverges makes the rollout raise;
@@ -110,7 +137,11 @@ class BatchSimulator:
                              f"got {divergence!r}")
         n = len(self.sims)
         s, f = self.settings, self._first
-        n_steps = int(round(duration / s.dt))
+        durations = np.asarray(duration, dtype=float)
+        if durations.shape not in ((), (n,)) or not np.all(durations >= 0):
+            raise InputError(f"duration must be one value or one per environment ({n}), each >= 0 s; got {duration!r}")
+        steps = np.rint(np.broadcast_to(durations, (n,)) / s.dt).astype(np.int64)
+        n_steps = int(steps.max())
         gidx = np.arange(n, dtype=np.int64) if goal_index is None else np.asarray(goal_index, dtype=np.int64)
         if goals.ndim != 3 or goals.shape[2] != self.model.n_joints or gidx.shape != (n,) \
                 or gidx.min() < 0 or gidx.max() >= goals.shape[1]:
@@ -133,26 +164,34 @@ class BatchSimulator:
         # the servo loops' integral, previous error, duty and motor current (zero before the first step)
         servo = np.ascontiguousarray(np.stack([np.array([st.integ, st.prev_err, st.duty, np.zeros(nj)], dtype=float)
                                                for st in states]))
-        plan = np.zeros(K.N_PLAN, dtype=np.int64)
-        plan[[K.P_STEPS, K.P_SUBSTEPS, K.P_RECORD_EVERY, K.P_INTEGRATE, K.P_FLOATING]] = (
-            n_steps, sub, every, 1, self.model.chain.floating)
+        plan = np.zeros((n, K.N_PLAN), dtype=np.int64)
+        plan[:, [K.P_SUBSTEPS, K.P_RECORD_EVERY, K.P_INTEGRATE, K.P_FLOATING]] = (
+            sub, every, 1, self.model.chain.floating)
+        plan[:, K.P_STEPS] = steps
         nf, nb = len(self.model.features), len(self.model.chain.parents)
-        work = np.empty((n, K.workspace_size(nf, nb)))
-        record = np.empty((n, n_rec, nq + nv + nj))
-        minv = np.zeros((n, nv, nv) if self._soft else (n, 0, 0))
-        warm = np.zeros((n, nf, 4) if self._soft else (n, 0, 4))
-        status = np.zeros(n, dtype=np.int64)
-        failed_at = np.zeros(n, dtype=np.int64)
+        # one rollout per distinct environment (u: the first of each, inverse: each one's)
+        u, inverse = self._distinct(Q, V, servo, gidx, steps)
+        k = len(u)
+        work = np.empty((k, K.workspace_size(nf, nb)))
+        record = np.full((k, n_rec, nq + nv + nj), np.nan)
+        minv = np.zeros((k, nv, nv) if self._soft else (k, 0, 0))
+        warm = np.zeros((k, nf, 4) if self._soft else (k, 0, 4))
+        status = np.zeros(k, dtype=np.int64)
+        failed_at = np.zeros(k, dtype=np.int64)
         on = np.ones(nj, dtype=np.bool_)
+        Qu, Vu = np.ascontiguousarray(Q[u]), np.ascontiguousarray(V[u])
         threads = numba.get_num_threads()
         numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
+        chunk = numba.set_parallel_chunksize(1)
         try:
-            K.batch_rollout_loop(*self._handles, K.LOOP_LAWS[f.contact_law], plan, Q, V, A, goals, gidx, servo, on,
-                                 self.act, f.scal, self.ground, f._chain_i, f._chain_R, f._chain_f, f._feat_i,
-                                 f._feat_f, np.empty((n, nv)), work, record, minv, self.body_weight, warm, status,
-                                 failed_at)
+            K.batch_rollout_loop(self._handles[0][u], self._handles[1][u], K.LOOP_LAWS[f.contact_law], plan[u], Qu, Vu,
+                                 A[u], goals, gidx[u], servo[u], on, self.act[u], f.scal, self.ground[u], f._chain_i,
+                                 f._chain_R, f._chain_f, f._feat_i, f._feat_f, np.empty((k, nv)), work, record,
+                                 minv, self.body_weight[u], warm, status, failed_at)
         finally:
+            numba.set_parallel_chunksize(chunk)
             numba.set_num_threads(threads)
+        Q, V, work, record, status, failed_at = (x[inverse] for x in (Qu, Vu, work, record, status, failed_at))
         dead = status != K.STATUS_OK
         if dead.any() and divergence == "raise":
             bad = np.flatnonzero(dead)
@@ -160,7 +199,7 @@ class BatchSimulator:
             X = work[k, :3 * nf].reshape(nf, 3)
             detail = self.sims[k].divergence_message(int(abs(status[k])), failed_at[k] * s.dt, V[k], X)
             raise SimulationDiverged(f"environments {bad.tolist()} of {n} diverged; environment {k}: {detail}")
-        Q_rec = record[:, :, :nq].transpose(1, 0, 2)
+        Q_rec = record[:, :, :nq].transpose(1, 0, 2)  # environment e's rows after its own duration: NaN
         M_rec = Q_rec[:, :, nq - nj:] + self.act[None, :, :, K.A_ENC_OFFSET]
         C_rec = record[:, :, nq + nv:].transpose(1, 0, 2)
         Q[dead] = V[dead] = np.nan

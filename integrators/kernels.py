@@ -607,14 +607,16 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
 
 
 @njit(cache=True, parallel=True)
-def batch_rollout_loop(aba_models, aba_data, law, plan, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
+def batch_rollout_loop(aba_models, aba_data, law, PLAN, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
                        ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, WEIGHT, WARM,
                        status, failed_at):
     """Every environment ``e`` of a batch (rows of the arrays) through a whole rollout, one
     environment per thread at a time: :func:`rollout_loop` on ``Q[e]``, ``V[e]``, ... with the
-    goal sequence ``goals[:, goal_index[e]]`` (n_ticks, G, nj) and the native handles
-    ``aba_models[e]``, ``aba_data[e]`` (one workspace per environment), recording into
-    ``RECORD[e]`` (n_rec, nq + nv + nj). The environments are independent, so each runs its
+    goal sequence ``goals[:, goal_index[e]]`` (n_ticks, G, nj), its own plan ``PLAN[e]``
+    (environments may run for different numbers of steps) and the native
+    handles ``aba_models[e]``, ``aba_data[e]`` (one workspace per environment), recording into
+    ``RECORD[e]`` (n_rec, nq + nv + nj; an environment with fewer steps leaves the rows after its
+    last record as they were). The environments are independent, so each runs its
     whole rollout without meeting the others at every step (no parallel region per step, no
     trip through the interpreter per step); each one's arithmetic is :func:`rollout_loop`'s.
 
@@ -627,7 +629,7 @@ def batch_rollout_loop(aba_models, aba_data, law, plan, Q, V, A, goals, goal_ind
     inlined copy of these kernels after they were edited.
     """
     for e in prange(Q.shape[0]):
-        s, i = rollout_loop(0, plan[P_STEPS] + 1, aba_models[e], aba_data[e], law, plan, Q[e], V[e], A[e],
+        s, i = rollout_loop(0, PLAN[e, P_STEPS] + 1, aba_models[e], aba_data[e], law, PLAN[e], Q[e], V[e], A[e],
                             goals[:, goal_index[e]], SERVO[e], torque_on, act[e], scal, ground[e], chain_i, chain_R,
                             chain_f, feat_i, feat_f, TAU[e], WORK[e], RECORD[e], MINV[e], WEIGHT[e], WARM[e])
         status[e] = s

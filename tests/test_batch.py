@@ -9,6 +9,7 @@ import pytest
 
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
+from integrators import kernels as K
 from integrators.batch import BatchSimulator
 from integrators.simulator import SimulationDiverged
 from sysid.discrepancy.effects import EffectLibrary
@@ -75,3 +76,46 @@ def test_a_masked_divergence_leaves_the_other_environments_bit_for_bit(cobra):
     assert np.array_equal(Q_rec[:, [0, 2]], Qh_rec) and np.array_equal(M_rec[:, [0, 2]], Mh_rec)
     with pytest.raises(InputError, match="divergence must be"):
         batch.rollout(states, goals, 0.3, divergence="ignore")
+
+
+def test_equal_environments_run_once_and_each_gets_its_single_rollout(cobra, monkeypatch):
+    # environments 0, 2 and 4 are one rollout (the same parameter values, state and commands, as a
+    # fit's trial rows and the candidates' starts repeat them); 1 differs only in its start, 3 only
+    # in its rigid-body model (transmission inertia): those must not be merged
+    nominal = ModelParameters.nominal()
+    same = nominal.with_values(mu_c=nominal.value("mu_c"))  # another object, the same values
+    params = [nominal, nominal, same, nominal.with_values(armature=0.05), same.with_values(k2=nominal.value("k2"))]
+    assert params[2] is not params[0] and params[4] is not params[2]
+    batch = BatchSimulator(cobra, params, threads=2)
+    starts = [0.0, 1.0, 0.0, 0.0, 0.0]
+    states = [s.rest_state(heading_rad=h) for s, h in zip(batch.sims, starts)]
+    table = SidewindingGait(0.5).q_ref(np.arange(401) * 1e-3)
+    ran = []
+    kernel = K.batch_rollout_loop
+    monkeypatch.setattr(K, "batch_rollout_loop", lambda *args: (ran.append(len(args[4])), kernel(*args))[1])
+    Q, V, Q_rec, _, _ = batch.rollout(states, table[:, None, :], 0.4, record_every=50,
+                                      goal_index=np.zeros(5, dtype=int))  # one goal sequence, as objectives share
+    assert ran == [3]  # environments {0, 2, 4}, 1 and 3
+    for e, (sim, st) in enumerate(zip(batch.sims, states)):
+        tr = sim.rollout(st, table, 0.4, record_every=50)
+        assert np.array_equal(Q[e], tr.q[-1]) and np.array_equal(V[e], tr.v[-1]) and np.array_equal(Q_rec[:, e], tr.q), e
+    assert not np.array_equal(Q[0], Q[1]) and not np.array_equal(Q[0], Q[3])
+
+
+def test_environments_of_different_durations_each_end_at_their_own(cobra):
+    params = [ModelParameters.nominal().with_values(mu_c=mu) for mu in (0.2, 0.3, 0.4)]
+    batch = BatchSimulator(cobra, params, threads=2)
+    table = SidewindingGait(0.65).q_ref(np.arange(601) * 1e-3)
+    states = [s.rest_state() for s in batch.sims]
+    durations = [0.6, 0.25, 0.4]
+    Q, V, Q_rec, M_rec, C_rec = batch.rollout(states, np.repeat(table[:, None, :], 3, axis=1), durations,
+                                              record_every=50)
+    assert Q_rec.shape[0] == 13  # the longest environment's records
+    for e, (sim, st, d) in enumerate(zip(batch.sims, states, durations)):
+        tr = sim.rollout(st, table, d, record_every=50)
+        n = len(tr.q)
+        assert np.array_equal(Q[e], tr.q[-1]) and np.array_equal(V[e], tr.v[-1]), e
+        assert np.array_equal(Q_rec[:n, e], tr.q) and np.array_equal(M_rec[:n, e], tr.q_meas), e
+        assert np.isnan(Q_rec[n:, e]).all() and np.isnan(M_rec[n:, e]).all() and np.isnan(C_rec[n:, e]).all(), e
+    with pytest.raises(InputError, match=r"duration must be one value or one per environment \(3\)"):
+        batch.rollout(states, np.repeat(table[:, None, :], 3, axis=1), [0.1, 0.2])

@@ -120,3 +120,21 @@ def test_objectives_that_cannot_share_a_batch_are_refused(runs):
 
     ra, rb = run_together([ask(a), ask(b)])
     assert np.array_equal(ra, a.residuals(x)) and np.array_equal(rb, b.residuals(x))
+
+
+def test_runs_and_horizons_of_different_lengths_share_a_batch_and_keep_their_residuals(runs):
+    """Each environment runs for its own run's length (not the batch's longest) and a run's samples
+    read only its own records: a run of 2 s beside one cut to 1.2 s, and a 0.7 s horizon beside
+    whole runs, give exactly the residuals each has alone."""
+    train, held = runs
+    uneven = Objective([train[0], held[0].slice_time(held[0].t[0], held[0].t[0] + 1.2)], NOMINAL)
+    x = np.stack([NOMINAL.as_vector(), NOMINAL.as_vector() * np.array([1.1, 1.3, 0.95])])
+    alone = [Objective([r], NOMINAL).residuals(x) for r in uneven.runs]
+    assert np.array_equal(uneven.residuals(x), np.concatenate(alone, axis=1))
+    short = Objective(train, NOMINAL).truncated(0.7)
+
+    def ask(objective: Objective):
+        return (yield Evaluate(objective, x))
+
+    got = run_together([ask(uneven), ask(short)])
+    assert np.array_equal(got[0], uneven.residuals(x)) and np.array_equal(got[1], short.residuals(x))

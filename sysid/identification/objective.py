@@ -153,12 +153,11 @@ class ObjectiveSpec:
 
 def shares_batch(a: ObjectiveSpec, b: ObjectiveSpec) -> bool:
     """Whether two objectives' evaluations can step in one batched rollout without changing
-    either's results: the same robot file, physics and control steps, contact law, sample rate,
-    threads and recorded span (every environment's records are those it would have alone)."""
+    either's results: the same robot file, physics and control steps, contact law, sample rate
+    and threads. Their runs' lengths may differ: each environment runs for its own run's
+    length and its samples read only its own records, which are those it would have alone."""
     return (a.urdf == b.urdf and a.settings == b.settings and a.threads == b.threads
-            and a.params.contact_law == b.params.contact_law and a.weights.sample_hz == b.weights.sample_hz
-            and max(tg.duration for tg in a.targets) == max(tg.duration for tg in b.targets)
-            and max(len(tg.ticks) for tg in a.targets) == max(len(tg.ticks) for tg in b.targets))
+            and a.params.contact_law == b.params.contact_law and a.weights.sample_hz == b.weights.sample_hz)
 
 
 def simulate_batch(spec: ObjectiveSpec, X: np.ndarray, divergence: Divergence = "raise") -> list[Simulated]:
@@ -193,8 +192,9 @@ def simulate_together(jobs: Sequence[tuple[ObjectiveSpec, np.ndarray]], divergen
     index = {id(tg): r for r, tg in enumerate(targets)}
     n_ticks = max(len(tg.ticks) for tg in targets)
     every = max(1, int(round(1.0 / (spec0.weights.sample_hz * settings.dt))))
-    # one extra record period so that every sample time lies inside the recorded span
-    duration = max(tg.duration for tg in targets) + every * settings.dt
+    # each environment for its own run's length and one record period more, so that every sample
+    # time lies inside its recorded span (the samples of a run read only its records before then)
+    durations = [tg.duration + every * settings.dt for _, tg in envs]
     # one goal sequence per (command delay, run) that an environment follows: environments share
     # a sequence, not a batch
     keys = [(effect_value(p, "actuator_delay"), index[id(tg)]) for p, tg in envs]
@@ -215,7 +215,7 @@ def simulate_together(jobs: Sequence[tuple[ObjectiveSpec, np.ndarray]], divergen
             pose = tg.start.pose(model, reading)
             rest[key] = sim.rest_state(pose.q_joints, head_xy=pose.head_xy, base_quat_wxyz=pose.head_quat_wxyz)
         states.append(rest[key])
-    _, _, q_rec, m_rec, c_rec = batch.rollout(states, goals, duration, record_every=every, goal_index=goal_index,
+    _, _, q_rec, m_rec, c_rec = batch.rollout(states, goals, durations, record_every=every, goal_index=goal_index,
                                               divergence=divergence)
     dead = np.isnan(q_rec[0]).any(axis=1)  # masked: the initial record of a diverged environment is NaN too
     t_rec = np.arange(q_rec.shape[0]) * every * settings.dt
