@@ -76,20 +76,23 @@ class BatchSimulator:
                          np.array([d.handle for d in self._native], dtype=np.intp))
         self._first = first
 
-    def _distinct(self, Q: np.ndarray, V: np.ndarray, servo: np.ndarray, goal_index: np.ndarray,
+    def _distinct(self, Q: np.ndarray, V: np.ndarray, servo: np.ndarray, goals: np.ndarray, goal_index: np.ndarray,
                   steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The environments that are distinct rollouts: ``(u, inverse)``, the index of the first
         environment of each distinct rollout and, per environment, the position of its rollout
         in ``u``. Two environments are one rollout when they share the rigid-body model (one
         object per value: ``RobotModel.with_armature`` and ``with_link_mass`` are memoised), the
         actuator and ground arrays, the initial configuration, velocity and servo state, the goal
-        sequence (its index: environments share a sequence by index, as `simulate_together` gives
-        them) and the number of steps; the step, gains and contact law are the batch's."""
+        sequence (by its values: objectives built apart hold the same run's commands in
+        sequences of their own) and the number of steps; the step, gains and contact law are
+        the batch's."""
+        sequence: dict[bytes, int] = {}
+        same = {g: sequence.setdefault(goals[:, g].tobytes(), len(sequence)) for g in np.unique(goal_index)}
         first: dict[tuple, int] = {}
         u, inverse = [], np.empty(len(self.sims), dtype=np.int64)
         for e, sim in enumerate(self.sims):
             key = (id(sim.model), self.act[e].tobytes(), self.ground[e].tobytes(), Q[e].tobytes(), V[e].tobytes(),
-                   servo[e].tobytes(), int(goal_index[e]), int(steps[e]))
+                   servo[e].tobytes(), same[goal_index[e]], int(steps[e]))
             if key not in first:
                 first[key] = len(u)
                 u.append(e)
@@ -170,7 +173,7 @@ class BatchSimulator:
         plan[:, K.P_STEPS] = steps
         nf, nb = len(self.model.features), len(self.model.chain.parents)
         # one rollout per distinct environment (u: the first of each, inverse: each one's)
-        u, inverse = self._distinct(Q, V, servo, gidx, steps)
+        u, inverse = self._distinct(Q, V, servo, goals, gidx, steps)
         k = len(u)
         work = np.empty((k, K.workspace_size(nf, nb)))
         record = np.full((k, n_rec, nq + nv + nj), np.nan)

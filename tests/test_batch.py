@@ -84,22 +84,23 @@ def test_equal_environments_run_once_and_each_gets_its_single_rollout(cobra, mon
     # in its rigid-body model (transmission inertia): those must not be merged
     nominal = ModelParameters.nominal()
     same = nominal.with_values(mu_c=nominal.value("mu_c"))  # another object, the same values
-    params = [nominal, nominal, same, nominal.with_values(armature=0.05), same.with_values(k2=nominal.value("k2"))]
+    params = [nominal, nominal, same, nominal.with_values(armature=0.05), same.with_values(k2=nominal.value("k2")),
+              nominal]
     assert params[2] is not params[0] and params[4] is not params[2]
     batch = BatchSimulator(cobra, params, threads=2)
-    starts = [0.0, 1.0, 0.0, 0.0, 0.0]
+    starts = [0.0, 1.0, 0.0, 0.0, 0.0, 0.0]
     states = [s.rest_state(heading_rad=h) for s, h in zip(batch.sims, starts)]
-    table = SidewindingGait(0.5).q_ref(np.arange(401) * 1e-3)
+    t = np.arange(401) * 1e-3
+    tables = [SidewindingGait(0.5).q_ref(t)] * 5 + [SidewindingGait(0.65).q_ref(t)]  # 5: other commands
     ran = []
     kernel = K.batch_rollout_loop
     monkeypatch.setattr(K, "batch_rollout_loop", lambda *args: (ran.append(len(args[4])), kernel(*args))[1])
-    Q, V, Q_rec, _, _ = batch.rollout(states, table[:, None, :], 0.4, record_every=50,
-                                      goal_index=np.zeros(5, dtype=int))  # one goal sequence, as objectives share
-    assert ran == [3]  # environments {0, 2, 4}, 1 and 3
-    for e, (sim, st) in enumerate(zip(batch.sims, states)):
+    Q, V, Q_rec, _, _ = batch.rollout(states, np.stack(tables, axis=1), 0.4, record_every=50)
+    assert ran == [4]  # environments {0, 2, 4}, 1, 3 and 5 (each its own copy of the commands)
+    for e, (sim, st, table) in enumerate(zip(batch.sims, states, tables)):
         tr = sim.rollout(st, table, 0.4, record_every=50)
         assert np.array_equal(Q[e], tr.q[-1]) and np.array_equal(V[e], tr.v[-1]) and np.array_equal(Q_rec[:, e], tr.q), e
-    assert not np.array_equal(Q[0], Q[1]) and not np.array_equal(Q[0], Q[3])
+    assert not np.array_equal(Q[0], Q[1]) and not np.array_equal(Q[0], Q[3]) and not np.array_equal(Q[0], Q[5])
 
 
 def test_environments_of_different_durations_each_end_at_their_own(cobra):
