@@ -619,6 +619,7 @@ def batch_rollout_loop(aba_models, aba_data, law, PLAN, Q, V, A, goals, goal_ind
     last record as they were). The environments are independent, so each runs its
     whole rollout without meeting the others at every step (no parallel region per step, no
     trip through the interpreter per step); each one's arithmetic is :func:`rollout_loop`'s.
+    The threads take the environments in any order (the batch hands them out one at a time).
 
     ``status[e]``, ``failed_at[e]``: :func:`rollout_loop`'s status and the step it stopped at
     (0 and the last step when it finished); an environment that fails stops there, its state
@@ -629,9 +630,15 @@ def batch_rollout_loop(aba_models, aba_data, law, PLAN, Q, V, A, goals, goal_ind
     inlined copy of these kernels after they were edited.
     """
     for e in prange(Q.shape[0]):
-        s, i = rollout_loop(0, PLAN[e, P_STEPS] + 1, aba_models[e], aba_data[e], law, PLAN[e], Q[e], V[e], A[e],
-                            goals[:, goal_index[e]], SERVO[e], torque_on, act[e], scal, ground[e], chain_i, chain_R,
-                            chain_f, feat_i, feat_f, TAU[e], WORK[e], RECORD[e], MINV[e], WEIGHT[e], WARM[e])
+        # the state and workspaces a step writes, in arrays of this thread's own: rows of the
+        # batch's arrays are a few cache lines, and neighbouring rows stepped on two threads at
+        # once would share one, written at every step (false sharing)
+        q, v, a, servo, tau, work = Q[e].copy(), V[e].copy(), A[e].copy(), SERVO[e].copy(), TAU[e].copy(), WORK[e].copy()
+        minv, warm = MINV[e].copy(), WARM[e].copy()
+        s, i = rollout_loop(0, PLAN[e, P_STEPS] + 1, aba_models[e], aba_data[e], law, PLAN[e], q, v, a,
+                            goals[:, goal_index[e]], servo, torque_on, act[e], scal, ground[e], chain_i, chain_R,
+                            chain_f, feat_i, feat_f, tau, work, RECORD[e], minv, WEIGHT[e], warm)
+        Q[e], V[e], A[e], SERVO[e], TAU[e], WORK[e], MINV[e], WARM[e] = q, v, a, servo, tau, work, minv, warm
         status[e] = s
         failed_at[e] = i
 
