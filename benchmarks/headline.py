@@ -289,6 +289,8 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   runs and every soft-law fit screened from the stiff 2 ms start; CHANGELOG "twenty-eighth stop").
 #: - The diagnosis's profiles rank their points on each run's first 3 s (``PROFILE_HORIZON_S``;
 #:   diagnoses of runs longer than 3 s only; CHANGELOG "thirty-first stop").
+#: - A batch runs equal environments once and each for its own run's length (CHANGELOG
+#:   "thirty-fourth stop"): wall times only.
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -317,6 +319,10 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-28T01:53", "f2e4155", "6 s profiles",
      ("diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current", "mujoco_robustness_stiff",
       "mujoco_robustness_stiff_current", "mujoco_robustness_soft_constraint")),
+    # a batch runs each distinct rollout once, each for its own run's length (results bit for bit
+    # the same; wall times shorter, and PPO's budget buys more evaluations)
+    ("2026-11-28T12:02", "f0c2802", "wall times of batches that run each run for its own length",
+     ("fit_speed", "diagnose_accuracy")),
 )
 
 

@@ -86,9 +86,12 @@ def time_batch(model: CobraModel, table: np.ndarray, n_env: int, seconds: float 
     n = int(seconds / DT)
     goals = np.ascontiguousarray(np.repeat(table[: n + 1, None, :], n_env, axis=1))
     batch.rollout(states, goals[:10], 0.005)   # compile
-    t0 = time.perf_counter()
-    batch.rollout(states, goals, seconds)
-    return (time.perf_counter() - t0) / (n * n_env)
+    best = np.inf
+    for _ in range(REPEATS):  # best of REPEATS, as the paths: one run can fall in a slow phase of the host
+        t0 = time.perf_counter()
+        batch.rollout(states, goals, seconds)
+        best = min(best, time.perf_counter() - t0)
+    return best / (n * n_env)
 
 
 def main() -> None:
