@@ -74,7 +74,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import RESULTS_DIR, write_results  # noqa: E402
 from benchmarks._args import number_list  # noqa: E402
+from cobra_cli.common import listed_laws  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
+from cobra_model.errors import InputError  # noqa: E402
 from cobra_model.parameters import CONTACT_LAWS  # noqa: E402
 from integrators.simulator import Simulator  # noqa: E402
 from sysid.generators.dataset import RunPlan, record  # noqa: E402
@@ -172,7 +174,7 @@ def run_job(job: Job) -> dict[str, Any]:
     runs = make_runs(job, model)
     free = FREE_SIM if job.engine == "sim" else FREE_MUJOCO
     # the law's own ground parameters free, those it does not read frozen (as `cobra diagnose --contact`);
-    # "choose": the base model fitted under every law, the lower held-out cost kept
+    # "choose": the diagnosis run under each of the job's laws, the lowest final held-out cost kept
     starts = {law: nominal_start(law, free) for law in (job.laws if job.contact_law == "choose" else (job.contact_law,))}
     config = DiagnoseConfig(max_effects=max(1, len(job.hidden)))
     t0 = time.perf_counter()
@@ -384,8 +386,9 @@ def main(argv: list[str] | None = None) -> int:
     if set(seeds) & set(DEV_SEEDS):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
     law = args.mujoco_contact_law
-    among = tuple(dict.fromkeys(x.strip() for x in args.choose_among.split(",") if x.strip()))
-    if not among or set(among) - set(CONTACT_LAWS):
+    try:
+        among = listed_laws(args.choose_among)  # as `cobra diagnose --contact LAW,LAW` reads its list
+    except InputError:
         parser.error(f"--choose-among {args.choose_among!r}: expected contact laws among {', '.join(CONTACT_LAWS)}, "
                      "comma-separated")
     contact = args.mujoco_contact

@@ -194,7 +194,9 @@ class BatchSimulator:
         finally:
             numba.set_parallel_chunksize(chunk)
             numba.set_num_threads(threads)
-        Q, V, work, record, status, failed_at = (x[inverse] for x in (Qu, Vu, work, record, status, failed_at))
+        if k < n:  # every environment gets its rollout's results (u is in order: with no copies, inverse is 0..n-1)
+            Qu, Vu, work, record, status, failed_at = (x[inverse] for x in (Qu, Vu, work, record, status, failed_at))
+        Q, V = Qu, Vu
         dead = status != K.STATUS_OK
         if dead.any() and divergence == "raise":
             bad = np.flatnonzero(dead)
