@@ -22,6 +22,7 @@ from cobra_model.model import RobotModel
 from cobra_model.parameters import ModelParameters
 from integrators import kernels as K
 from integrators import native
+from integrators.rollout_memo import KeptRollout, active_memo
 from integrators.simulator import SimSettings, SimState, SimulationDiverged, Simulator, contact_resolved
 
 #: What a batch does when an environment diverges (:meth:`BatchSimulator.rollout`).
@@ -75,29 +76,44 @@ class BatchSimulator:
         self._handles = (np.array([d.model.handle for d in self._native], dtype=np.intp),
                          np.array([d.handle for d in self._native], dtype=np.intp))
         self._first = first
+        # what every rollout of this batch shares, as a memo's key (integrators.rollout_memo)
+        self._const = (first.contact_law, first.scal.tobytes(), first._chain_i.tobytes(), first._chain_R.tobytes(),
+                       first._chain_f.tobytes(), first._feat_i.tobytes(), first._feat_f.tobytes(),
+                       self.settings.substeps, self.model.chain.floating)
 
-    def _distinct(self, Q: np.ndarray, V: np.ndarray, servo: np.ndarray, goals: np.ndarray, goal_index: np.ndarray,
-                  steps: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The environments that are distinct rollouts: ``(u, inverse)``, the index of the first
-        environment of each distinct rollout and, per environment, the position of its rollout
-        in ``u``. Two environments are one rollout when they share the rigid-body model (one
-        object per value: ``RobotModel.with_armature`` and ``with_link_mass`` are memoised), the
-        actuator and ground arrays, the initial configuration, velocity and servo state, the goal
-        sequence (by its values: objectives built apart hold the same run's commands in
-        sequences of their own) and the number of steps; the step, gains and contact law are
-        the batch's."""
+    def _runs(self, Q: np.ndarray, V: np.ndarray, servo: np.ndarray, goals: np.ndarray, goal_index: np.ndarray,
+              steps: np.ndarray, every: int) -> tuple[list[tuple], np.ndarray, np.ndarray]:
+        """The rollouts that answer every environment: ``(keys, u, inverse)``, per rollout its
+        key (everything that determines it but the goal sequence and the step count) and the
+        environment whose goal sequence and step count it runs, and per environment the
+        rollout that answers it. Two environments share a rollout when they share the rigid-body
+        model (one object per value: ``RobotModel.with_armature`` and ``with_link_mass`` are
+        memoised), the actuator and ground arrays, the initial configuration, velocity and servo
+        state and the goal sequence (by its values: objectives built apart hold the same run's
+        commands in sequences of their own); the longest of them runs, and a shorter one takes
+        its records and, as its final state, the record at its own last step (so its step count
+        must be a whole number of record periods; otherwise it runs on its own). The step, gains
+        and contact law are the batch's."""
         sequence: dict[bytes, int] = {}
         same = {g: sequence.setdefault(goals[:, g].tobytes(), len(sequence)) for g in np.unique(goal_index)}
+        keys = [(id(sim.model), self.act[e].tobytes(), self.ground[e].tobytes(), Q[e].tobytes(), V[e].tobytes(),
+                 servo[e].tobytes(), every) for e, sim in enumerate(self.sims)]
+        longest: dict[tuple, int] = {}
+        for e, key in enumerate(keys):
+            group = (key, same[goal_index[e]])
+            if steps[e] > steps[longest.setdefault(group, e)]:
+                longest[group] = e
         first: dict[tuple, int] = {}
         u, inverse = [], np.empty(len(self.sims), dtype=np.int64)
-        for e, sim in enumerate(self.sims):
-            key = (id(sim.model), self.act[e].tobytes(), self.ground[e].tobytes(), Q[e].tobytes(), V[e].tobytes(),
-                   servo[e].tobytes(), same[goal_index[e]], int(steps[e]))
-            if key not in first:
-                first[key] = len(u)
-                u.append(e)
-            inverse[e] = first[key]
-        return np.array(u, dtype=np.int64), inverse
+        for e, key in enumerate(keys):
+            group = (key, same[goal_index[e]])
+            runs_with = longest[group] if steps[e] % every == 0 else e
+            run = (group, int(steps[runs_with]))
+            if run not in first:
+                first[run] = len(u)
+                u.append(runs_with)
+            inverse[e] = first[run]
+        return [keys[e] for e in u], np.array(u, dtype=np.int64), inverse
 
     def rollout(self, states: Sequence[SimState], goals: np.ndarray, duration: float | Sequence[float], *,
                 record_every: int = 0, goal_index: np.ndarray | None = None, divergence: Divergence = "raise"
@@ -105,10 +121,12 @@ class BatchSimulator:
         """Step every environment for ``duration`` [s] with servo goals per control tick.
 
         Environments with the same rigid-body model, actuator and ground parameters, initial
-        state, goal sequence and duration are one rollout: it runs once and its result is given
-        to each of them (every environment's arithmetic is a single rollout's, so the copies are
-        what each would have computed). Environments run in turn on the threads as they finish
-        (chunks of one), so that rollouts of different lengths share the threads evenly.
+        state and goal sequence are one rollout (:meth:`_runs`): the longest runs once and the
+        others take its records up to their own last step (every environment's arithmetic is a
+        single rollout's, so these are what each would have computed). Inside
+        :func:`integrators.rollout_memo.memoised_rollouts`, a rollout that a request of the same
+        scope ran already is taken from there. Rollouts run in turn on the threads, the longest
+        first (chunks of one), so that rollouts of different lengths share the threads evenly.
 
         Args:
             states: N initial states (their servo loops tick at step 0).
@@ -172,31 +190,62 @@ class BatchSimulator:
             sub, every, 1, self.model.chain.floating)
         plan[:, K.P_STEPS] = steps
         nf, nb = len(self.model.features), len(self.model.chain.parents)
-        # one rollout per distinct environment (u: the first of each, inverse: each one's)
-        u, inverse = self._distinct(Q, V, servo, goals, gidx, steps)
-        k = len(u)
-        work = np.empty((k, K.workspace_size(nf, nb)))
-        record = np.full((k, n_rec, nq + nv + nj), np.nan)
-        minv = np.zeros((k, nv, nv) if self._soft else (k, 0, 0))
-        warm = np.zeros((k, nf, 4) if self._soft else (k, 0, 4))
-        status = np.zeros(k, dtype=np.int64)
-        failed_at = np.zeros(k, dtype=np.int64)
-        on = np.ones(nj, dtype=np.bool_)
-        Qu, Vu = np.ascontiguousarray(Q[u]), np.ascontiguousarray(V[u])
-        threads = numba.get_num_threads()
-        numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
-        chunk = numba.set_parallel_chunksize(1)
-        try:
-            K.batch_rollout_loop(self._handles[0][u], self._handles[1][u], K.LOOP_LAWS[f.contact_law], plan[u], Qu, Vu,
-                                 A[u], goals, gidx[u], servo[u], on, self.act[u], f.scal, self.ground[u], f._chain_i,
-                                 f._chain_R, f._chain_f, f._feat_i, f._feat_f, np.empty((k, nv)), work, record,
-                                 minv, self.body_weight[u], warm, status, failed_at)
-        finally:
-            numba.set_parallel_chunksize(chunk)
-            numba.set_num_threads(threads)
-        if k < n:  # every environment gets its rollout's results (u is in order: with no copies, inverse is 0..n-1)
-            Qu, Vu, work, record, status, failed_at = (x[inverse] for x in (Qu, Vu, work, record, status, failed_at))
-        Q, V = Qu, Vu
+        # the rollouts that answer every environment (u: whose goals and step count each runs,
+        # inverse: each environment's); inside a memoised scope, those run before are not run again
+        keys, u, inverse = self._runs(Q, V, servo, goals, gidx, steps, every)
+        memo = active_memo()
+        runs: list[KeptRollout | None] = [None] * len(u)
+        if memo is not None:
+            for r, (key, e) in enumerate(zip(keys, u)):
+                runs[r] = memo.find((self._const, key), goals[:, gidx[e]], int(steps[e]), every, sub)
+        # the longest first, so that the threads run out of work together
+        todo = sorted((r for r in range(len(u)) if runs[r] is None), key=lambda r: -steps[u[r]])
+        if todo:
+            t = u[todo]
+            k = len(t)
+            work = np.empty((k, K.workspace_size(nf, nb)))
+            record = np.full((k, n_rec, nq + nv + nj), np.nan)
+            minv = np.zeros((k, nv, nv) if self._soft else (k, 0, 0))
+            warm = np.zeros((k, nf, 4) if self._soft else (k, 0, 4))
+            status = np.zeros(k, dtype=np.int64)
+            failed_at = np.zeros(k, dtype=np.int64)
+            on = np.ones(nj, dtype=np.bool_)
+            Qt, Vt = np.ascontiguousarray(Q[t]), np.ascontiguousarray(V[t])
+            threads = numba.get_num_threads()
+            numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
+            chunk = numba.set_parallel_chunksize(1)
+            try:
+                K.batch_rollout_loop(self._handles[0][t], self._handles[1][t], K.LOOP_LAWS[f.contact_law], plan[t], Qt,
+                                     Vt, A[t], goals, gidx[t], servo[t], on, self.act[t], f.scal, self.ground[t],
+                                     f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f, np.empty((k, nv)), work,
+                                     record, minv, self.body_weight[t], warm, status, failed_at)
+            finally:
+                numba.set_parallel_chunksize(chunk)
+                numba.set_num_threads(threads)
+            for j, (r, e) in enumerate(zip(todo, t)):
+                runs[r] = KeptRollout(int(steps[e]), np.ascontiguousarray(goals[:steps[e] // sub + 1, gidx[e]]),
+                                      record[j, :steps[e] // every + 1].copy(), Qt[j], Vt[j], int(status[j]),
+                                      int(failed_at[j]), work[j], self.sims[e].model)
+                if memo is not None:
+                    memo.keep((self._const, keys[r]), runs[r])
+        # every environment from its rollout: the records up to its own last step, its final state
+        # (the record there when the rollout ran longer) and whether it diverged by then
+        record = np.full((n, n_rec, nq + nv + nj), np.nan)
+        Q, V = np.empty((n, nq)), np.empty((n, nv))
+        status = np.zeros(n, dtype=np.int64)
+        failed_at = np.zeros(n, dtype=np.int64)
+        work = np.empty((n, K.workspace_size(nf, nb)))
+        for e in range(n):
+            run, last = runs[inverse[e]], int(steps[e])
+            record[e, :last // every + 1] = run.record[:last // every + 1]
+            work[e] = run.work
+            # a longer rollout stopped at step i: this one had run step i's integration (status
+            # < 0) but not its forces (status > 0) when i is its own last step
+            stopped = run.status != K.STATUS_OK and (run.failed_at < last or (run.failed_at == last and run.status < 0))
+            if run.steps == last or stopped:
+                Q[e], V[e], status[e], failed_at[e] = run.q, run.v, run.status, run.failed_at
+            else:
+                Q[e], V[e], failed_at[e] = run.record[last // every, :nq], run.record[last // every, nq:nq + nv], last
         dead = status != K.STATUS_OK
         if dead.any() and divergence == "raise":
             bad = np.flatnonzero(dead)

@@ -59,6 +59,7 @@ from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.run import Run
+from integrators.rollout_memo import memoised_rollouts
 from integrators.simulate import rollout_like, simulate_like
 from integrators.simulator import Simulator
 from sysid.discrepancy.effects import Effect, EffectLibrary
@@ -727,6 +728,16 @@ def diagnose(train: Sequence[Run], holdout: Sequence[Run], *, params: ModelParam
         if params is not None or not law_starts:
             raise InputError("diagnose: give either params or law_starts (one start per contact law), not both")
         return _diagnose_each_law(train, holdout, law_starts, library, config, progress)
+    # a diagnosis asks for many rollouts again (a judged model's held-out runs, a fit's start
+    # in a later stage): each is run once (integrators.rollout_memo; bit for bit the same)
+    with memoised_rollouts():
+        return _diagnose_one_law(train, holdout, params, library, config, progress)
+
+
+def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: ModelParameters | None,
+                      library: EffectLibrary | None, config: DiagnoseConfig,
+                      progress: Callable[[str], None]) -> Diagnosis:
+    """:func:`diagnose` under the contact law of ``params``."""
     t0 = time.perf_counter()
     library = library or EffectLibrary()
     start = params or ModelParameters.nominal()

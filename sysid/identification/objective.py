@@ -193,8 +193,10 @@ def simulate_together(jobs: Sequence[tuple[ObjectiveSpec, np.ndarray]], divergen
     n_ticks = max(len(tg.ticks) for tg in targets)
     every = max(1, int(round(1.0 / (spec0.weights.sample_hz * settings.dt))))
     # each environment for its own run's length and one record period more, so that every sample
-    # time lies inside its recorded span (the samples of a run read only its records before then)
-    durations = [tg.duration + every * settings.dt for _, tg in envs]
+    # time lies inside its recorded span (the samples of a run read only its records before then),
+    # rounded up to a whole record period: its final state is then a record, and a rollout of the
+    # same run and model kept from a longer request answers it (integrators.rollout_memo)
+    durations = [np.ceil(round(tg.duration / settings.dt) / every + 1) * every * settings.dt for _, tg in envs]
     # one goal sequence per (command delay, run) that an environment follows: environments share
     # a sequence, not a batch
     keys = [(effect_value(p, "actuator_delay"), index[id(tg)]) for p, tg in envs]
