@@ -222,8 +222,10 @@ class BatchSimulator:
             finally:
                 numba.set_parallel_chunksize(chunk)
                 numba.set_num_threads(threads)
+            sequences: dict[int, np.ndarray] = {}  # one copy of each goal sequence, shared by its rollouts
             for j, (r, e) in enumerate(zip(todo, t)):
-                runs[r] = KeptRollout(int(steps[e]), np.ascontiguousarray(goals[:steps[e] // sub + 1, gidx[e]]),
+                sequence = sequences.setdefault(gidx[e], np.ascontiguousarray(goals[:, gidx[e]]))
+                runs[r] = KeptRollout(int(steps[e]), sequence[:steps[e] // sub + 1],
                                       record[j, :steps[e] // every + 1].copy(), Qt[j], Vt[j], int(status[j]),
                                       int(failed_at[j]), work[j], self.sims[e].model)
                 if memo is not None:
