@@ -31,7 +31,7 @@ class KeptRollout:
 
     Attributes:
         steps: physics steps it ran.
-        goals: (n_ticks, nj) [rad] the goal ticks it could read (ticks ``0 .. steps // substeps``).
+        goals: (n_ticks, nj) [rad] the goal ticks it read (ticks ``0 .. (steps - 1) // substeps``, and more).
         record: (steps // every + 1, nq + nv + nj) its records (NaN after a divergence).
         q, v: its final configuration (nq,) and velocity (nv,).
         status, failed_at: the kernel's status and the step it stopped at.
@@ -69,10 +69,11 @@ class RolloutMemo:
         """A kept rollout that answers a request of ``steps`` steps recorded every ``every``
         steps with the goal sequence ``goals`` (n_ticks, nj), or None: same key, at least as many
         steps (exactly as many unless ``steps`` is a multiple of ``every``: the final state is
-        then a record) and the same goal ticks up to ``steps // substeps``."""
+        then a record) and the same goal ticks where a rollout of ``steps`` steps reads them
+        (ticks ``0 .. (steps - 1) // substeps``: its last step only integrates and records)."""
         kept = self._kept.get(key)
         if kept is not None:
-            m = steps // substeps + 1
+            m = (steps - 1) // substeps + 1 if steps > 0 else 0
             for r in kept:
                 if (r.steps == steps or (r.steps > steps and steps % every == 0)) and len(r.goals) >= m \
                         and np.array_equal(r.goals[:m], goals[:m]):

@@ -10,6 +10,7 @@ from integrators import kernels as K
 from integrators.batch import BatchSimulator
 from integrators.rollout_memo import RolloutMemo, active_memo, memoised_rollouts
 from integrators.simulator import SimSettings, SimulationDiverged
+from sysid.identification.objective import recorded_span
 
 TABLE = SidewindingGait(0.65).q_ref(np.arange(601) * 1e-3)
 
@@ -59,7 +60,10 @@ def test_a_memoised_scope_answers_repeated_and_shorter_requests(cobra, monkeypat
     other = nominal.with_values(mu_c=nominal.value("mu_c"))  # another object, the same values
     later = TABLE.copy()
     later[350:] += 0.1  # other commands from 0.35 s on
-    expected = {(d, k): alone(cobra, nominal, d, 50, t) for d in (0.2, 0.4) for k, t in (("gait", TABLE), ("later", later))}
+    edge = TABLE.copy()
+    edge[200:] += 0.1  # from the tick at 0.2 s on, which a 0.2 s rollout does not read (its last step only integrates)
+    expected = {(d, k): alone(cobra, nominal, d, 50, t) for d in (0.2, 0.4)
+                for k, t in (("gait", TABLE), ("later", later), ("edge", edge))}
     ran = counting_kernel(monkeypatch)
     with memoised_rollouts() as memo:
         assert active_memo() is memo
@@ -74,9 +78,10 @@ def test_a_memoised_scope_answers_repeated_and_shorter_requests(cobra, monkeypat
         # the commands differ only after 0.2 s: the kept rollout answers; to 0.4 s it does not
         assert same(again.rollout([state], later[:, None, :], 0.2, record_every=50), expected[0.2, "later"])
         assert same(again.rollout([state], later[:, None, :], 0.4, record_every=50), expected[0.4, "later"])
+        assert same(again.rollout([state], edge[:, None, :], 0.2, record_every=50), expected[0.2, "edge"])
         # another record period is another rollout
         again.rollout([state], TABLE[:, None, :], 0.2, record_every=40)
-    assert ran == [1, 1, 1] and memo.hits == 3
+    assert ran == [1, 1, 1] and memo.hits == 4
     assert active_memo() is None
 
 
@@ -105,3 +110,13 @@ def test_a_memo_keeps_at_most_its_bound():
     assert list(memo._kept) == [(1,), (2,)]
     with pytest.raises(ValueError, match="max_rollouts must be >= 1"):
         RolloutMemo(0)
+
+
+def test_a_run_is_simulated_for_whole_record_periods_covering_its_samples():
+    rng = np.random.default_rng(0)
+    for duration in [5.98, 6.0, 6.0 + 1e-12, 2.9, 11.0, *rng.uniform(0.5, 12.0, 200)]:
+        span = recorded_span(duration, 100, 1e-3)
+        steps = int(np.rint(span / 1e-3))
+        last = np.arange(steps // 100 + 1)[-1] * 100 * 1e-3  # the last record time, as simulate_together has it
+        assert steps % 100 == 0 and last >= duration and last - duration < 0.1, duration
+    assert recorded_span(6.0, 100, 1e-3) == pytest.approx(6.0) and recorded_span(5.98, 100, 1e-3) == pytest.approx(6.0)

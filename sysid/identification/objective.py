@@ -170,6 +170,16 @@ def simulate_batch(spec: ObjectiveSpec, X: np.ndarray, divergence: Divergence = 
     return simulate_together([(spec, X)], divergence)[0]
 
 
+def recorded_span(duration: float, every: int, dt: float) -> float:
+    """The shortest rollout [s] of whole record periods (``every`` steps of ``dt`` [s]) whose last
+    record time, computed as :func:`simulate_together` computes its record times, is at or after
+    ``duration`` [s]."""
+    n = int(np.ceil(duration / (every * dt)))
+    while n * every * dt < duration:
+        n += 1
+    return n * every * dt
+
+
 def simulate_together(jobs: Sequence[tuple[ObjectiveSpec, np.ndarray]], divergence: Divergence = "raise"
                       ) -> list[list[Simulated]]:
     """:func:`simulate_batch` of several objectives' rows in one batched rollout (their specs
@@ -192,11 +202,11 @@ def simulate_together(jobs: Sequence[tuple[ObjectiveSpec, np.ndarray]], divergen
     index = {id(tg): r for r, tg in enumerate(targets)}
     n_ticks = max(len(tg.ticks) for tg in targets)
     every = max(1, int(round(1.0 / (spec0.weights.sample_hz * settings.dt))))
-    # each environment for its own run's length and one record period more, so that every sample
-    # time lies inside its recorded span (the samples of a run read only its records before then),
-    # rounded up to a whole record period: its final state is then a record, and a rollout of the
-    # same run and model kept from a longer request answers it (integrators.rollout_memo)
-    durations = [np.ceil(round(tg.duration / settings.dt) / every + 1) * every * settings.dt for _, tg in envs]
+    # each environment for its own run's length rounded up to a whole record period, so that every
+    # sample time lies inside its recorded span (a run's samples read only its records up to then)
+    # and its final state is a record: a rollout of the same run and model kept from a longer
+    # request answers it (integrators.rollout_memo)
+    durations = [recorded_span(tg.duration, every, settings.dt) for _, tg in envs]
     # one goal sequence per (command delay, run) that an environment follows: environments share
     # a sequence, not a batch
     keys = [(effect_value(p, "actuator_delay"), index[id(tg)]) for p, tg in envs]
