@@ -291,6 +291,8 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   diagnoses of runs longer than 3 s only; CHANGELOG "thirty-first stop").
 #: - A batch runs equal environments once and each for its own run's length (CHANGELOG
 #:   "thirty-fourth stop"): wall times only.
+#: - Objectives simulate each run for whole record periods, no period more, and the diagnosis
+#:   answers repeated rollouts from a memo (CHANGELOG "thirty-fifth stop"): wall times only.
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -322,6 +324,10 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # a batch runs each distinct rollout once, each for its own run's length (results bit for bit
     # the same; wall times shorter, and PPO's budget buys more evaluations)
     ("2026-11-28T12:02", "f0c2802", "wall times of batches that run each run for its own length",
+     ("fit_speed", "diagnose_accuracy")),
+    # runs simulated for whole record periods (2 % fewer steps), rollouts run before reused within
+    # a diagnosis (results bit for bit the same; wall times shorter)
+    ("2026-11-28T15:23", "8d9ac57", "wall times of runs simulated for whole record periods",
      ("fit_speed", "diagnose_accuracy")),
 )
 
