@@ -75,7 +75,7 @@ class RolloutMemo:
         if kept is not None:
             m = (steps - 1) // substeps + 1 if steps > 0 else 0
             for r in kept:
-                if (r.steps == steps or (r.steps > steps and steps % every == 0)) and len(r.goals) >= m \
+                if (r.steps == steps or (r.steps > steps and steps % every == 0)) \
                         and np.array_equal(r.goals[:m], goals[:m]):
                     self._kept.move_to_end(key)
                     self.hits += 1
