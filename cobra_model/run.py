@@ -34,6 +34,12 @@ FORMAT = "cobra-run/1"
 NUM_JOINTS = 11
 #: Tracked bodies other than the head that a run may carry, in column order.
 BODY_NAMES: tuple[str, ...] = tuple(f"link_{k}" for k in range(2, NUM_JOINTS + 1)) + ("tail",)
+#: Sidecar key saying what the commands did between two samples: ``"smooth"`` (the default: each
+#: ``q_ref`` row samples a command that varied continuously, e.g. a gait computed at the servo's
+#: rate and logged at 50 Hz) or ``"held"`` (each row is a goal written at its ``t`` and held by
+#: the servos until the next row, as :mod:`hardware.recorder` streams a gait).
+Q_REF_BETWEEN_SAMPLES = "q_ref_between_samples"
+Q_REF_MODES = ("smooth", "held")
 #: Relative tolerance on ``|q| - 1`` for a unit quaternion.
 QUAT_NORM_TOL = 1e-3
 
@@ -253,6 +259,12 @@ class Run:
         fmt = meta.setdefault("format", FORMAT)
         if fmt != FORMAT:
             raise InputError(f"Run.meta: \"format\" is {fmt!r}; expected {FORMAT!r}")
+        mode = meta.get(Q_REF_BETWEEN_SAMPLES, "smooth")
+        if mode not in Q_REF_MODES:
+            where = f"{Path(self.source).with_suffix('.json')}: " if self.source is not None else "Run.meta: "
+            raise InputError(f"{where}\"{Q_REF_BETWEEN_SAMPLES}\" is {mode!r}; expected \"smooth\" (a "
+                             f"continuously varying command, sampled) or \"held\" (goals held from one "
+                             f"sample to the next)")
         set_(self, "meta", meta)
         if self.source is not None:
             set_(self, "source", Path(self.source))
@@ -275,6 +287,12 @@ class Run:
         if isinstance(gait, Mapping) and isinstance(gait.get("frequency_hz"), (int, float)):
             return float(gait["frequency_hz"])
         return dominant_frequency_hz(self.t, self.q_ref)
+
+    @property
+    def q_ref_held(self) -> bool:
+        """Whether each ``q_ref`` row is a goal held until the next row (sidecar
+        :data:`Q_REF_BETWEEN_SAMPLES` ``"held"``) rather than a sample of a smooth command."""
+        return self.meta.get(Q_REF_BETWEEN_SAMPLES, "smooth") == "held"
 
     @property
     def dt_median(self) -> float:

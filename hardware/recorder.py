@@ -8,8 +8,8 @@ Hardware Error Status and Bus Watchdog (a servo the watchdog stopped ends the re
 sample is appended to the run file as it arrives (:class:`~hardware.runwriter.IncrementalRunWriter`).
 
 Time: ``t`` of a sample is when its goal was sent, from the monotonic clock, relative to the
-start of recording; the present state is read right after (``timing.read_latency_*`` in the
-sidecar says how long after). Cycles follow a fixed schedule ``t_k = k / rate``; a cycle that
+start of recording; the present state is read right after, and the column ``read_latency_s``
+says how long after for each sample (``timing.read_latency_*`` in the sidecar sums it up). Cycles follow a fixed schedule ``t_k = k / rate``; a cycle that
 starts more than a period late skips the missed slots instead of bunching up, and the sidecar
 reports the achieved rate, the jitter of the cycle starts and the skipped slots.
 
@@ -41,6 +41,7 @@ from typing import Any, Callable, Iterator, Protocol
 
 import numpy as np
 
+from cobra_model.run import Q_REF_BETWEEN_SAMPLES
 from hardware import control_table as ct
 from hardware.config import BusConfig, estimated_bus_time_s
 from hardware.control_table import OperatingMode, describe_hardware_error
@@ -253,7 +254,7 @@ class _Session:
         self.config = config
 
     def stream(self, duration_s: float, command: Callable[[float], np.ndarray],
-               on_sample: Callable[[float, np.ndarray, JointState], None], timing: _Timing) -> None:
+               on_sample: Callable[[float, np.ndarray, JointState, float], None], timing: _Timing) -> None:
         """Run the control loop for ``duration_s`` [s]; raises :class:`_Stop` on a fault."""
         period = self.config.control_period_s
         check_every = self.config.hardware_error_check_every
@@ -281,9 +282,10 @@ class _Session:
                 if failures >= self.config.max_consecutive_failures:
                     raise _Stop(StopReason.COMM_FAILURE, self._silence_reason(failures))
             else:
-                timing.latency.append(time.perf_counter() - start)
+                latency = time.perf_counter() - start
+                timing.latency.append(latency)
                 failures = 0
-                on_sample(t, q_cmd, state)
+                on_sample(t, q_cmd, state, latency)
             cycle += 1
             if error_check_due or cycle % check_every == 0:
                 errors = self.bus.read_hardware_errors()
@@ -354,6 +356,7 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
     source = "emulator" if port_is_pseudo_terminal(config.port) else "hardware"
     meta = {
         "source": source,
+        Q_REF_BETWEEN_SAMPLES: "held",  # each goal stays in the servos until the next cycle's
         "gait": gait.to_json(),
         "bus": config.to_json(),
         "recording": {
@@ -361,15 +364,15 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
             "duration_s": duration_s,
             "settle_s": settle_s,
             "t_definition": "time the goal was sent, from the start of recording; the state is "
-                            "read right after (see timing.read_latency_*)",
+                            "received read_latency_s after it",
         },
     }
 
-    def on_sample(t: float, q_cmd: np.ndarray, state: JointState) -> None:
+    def on_sample(t: float, q_cmd: np.ndarray, state: JointState, latency_s: float) -> None:
         nonlocal writer
         if writer is None:
             writer = IncrementalRunWriter(out_path, meta, force=force)
-        writer.append(t, q_cmd, state.q_rad, state.dq_rad_s, state.current_a)
+        writer.append(t, q_cmd, state.q_rad, state.dq_rad_s, state.current_a, latency_s)
 
     status, reason = StopReason.COMPLETED, ""
     unexpected: BaseException | None = None
@@ -420,7 +423,7 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
 
 def _run_session(bus: DynamixelBus, session: _Session, config: BusConfig, gait: Gait, duration_s: float,
                  settle_s: float, out_path: Path, timing: _Timing,
-                 on_sample: Callable[[float, np.ndarray, JointState], None], say: Callable[[str], None]) -> None:
+                 on_sample: Callable[[float, np.ndarray, JointState, float], None], say: Callable[[str], None]) -> None:
     """Connect, torque on, settle and record (every stop is an exception; see :func:`record_gait`)."""
     bus.connect()
     held = bus.torque_on()

@@ -14,9 +14,13 @@ writer therefore:
   is left as it was (it still says the recording did not finish).
 
 The column layout is exactly that of :func:`cobra_model.run_files.write_run` for a run with joint
-velocities and currents and no other tracked bodies: ``t, q_ref_1..11, q_1..11, dq_1..11,
-current_1..11, head_x, head_y, head_z, head_qw, head_qx, head_qy, head_qz``. Motion capture is
-merged later, so the ``head_*`` cells are left empty (missing samples).
+velocities and currents, no other tracked bodies and one extra column: ``t, q_ref_1..11, q_1..11,
+dq_1..11, current_1..11, head_x, head_y, head_z, head_qw, head_qx, head_qy, head_qz,
+read_latency_s``. Motion capture is merged later, so the ``head_*`` cells are left empty (missing
+samples). ``read_latency_s`` (DATA_FORMAT.md allows extra columns) is how long after ``t`` (the
+goal sent) the sample's present state was received [s]: the state describes the joints at some
+time in ``[t, t + read_latency_s]``, so a reading the host delayed can be told from a joint that
+lagged.
 """
 from __future__ import annotations
 
@@ -35,10 +39,12 @@ from cobra_model.run_files import json_default
 
 #: Head orientation columns (w, x, y, z), as in ``DATA_FORMAT.md``.
 HEAD_QUAT_COLUMNS = ("head_qw", "head_qx", "head_qy", "head_qz")
+#: Extra column: goal sent -> present state received, per sample [s].
+READ_LATENCY_COLUMN = "read_latency_s"
 #: Every column written, in order.
 COLUMNS: tuple[str, ...] = (
     "t", *joint_columns("q_ref"), *joint_columns("q"), *joint_columns("dq"), *joint_columns("current"),
-    *body_columns("head"), *HEAD_QUAT_COLUMNS,
+    *body_columns("head"), *HEAD_QUAT_COLUMNS, READ_LATENCY_COLUMN,
 )
 #: Sidecar note of a run whose recorder never closed it (crash, kill, power loss).
 UNFINISHED_NOTE = ("partial run: recording did not finish (the recorder stopped without closing "
@@ -133,9 +139,11 @@ class IncrementalRunWriter:
                                 f"the file keeps the {self.rows} samples before it") from exc
         self._committed += len(data)
 
-    def append(self, t: float, q_ref: np.ndarray, q: np.ndarray, dq: np.ndarray, current: np.ndarray) -> None:
+    def append(self, t: float, q_ref: np.ndarray, q: np.ndarray, dq: np.ndarray, current: np.ndarray,
+               read_latency_s: float) -> None:
         """Write one sample: time [s], commanded and measured angles [rad], velocities [rad/s]
-        and currents [A], each (11,). The line is handed to the OS at once.
+        and currents [A], each (11,), and how long after ``t`` the state was received [s]. The
+        line is handed to the OS at once.
 
         Raises:
             RunWriteError: the line could not be written (the file keeps the samples before it).
@@ -143,7 +151,8 @@ class IncrementalRunWriter:
         for name, arr in (("q_ref", q_ref), ("q", q), ("dq", dq), ("current", current)):
             if np.shape(arr) != (NUM_JOINTS,):
                 raise ValueError(f"{name}: expected shape ({NUM_JOINTS},), got {np.shape(arr)}")
-        line = ",".join((repr(float(t)), _cells(q_ref), _cells(q), _cells(dq), _cells(current))) + _EMPTY_MOCAP
+        line = (",".join((repr(float(t)), _cells(q_ref), _cells(q), _cells(dq), _cells(current)))
+                + _EMPTY_MOCAP + "," + repr(float(read_latency_s)))
         self._write_line(line)
         self.rows += 1
         if time.monotonic() - self._last_sync >= self._fsync_interval_s:

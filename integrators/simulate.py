@@ -2,8 +2,10 @@
 
 A recorded run is reproduced from its first sample's pose (head position and orientation,
 joint angles), at rest, and its ``q_ref`` columns alone (DATA_FORMAT.md). The commands are
-interpolated (Akima) from the run's samples onto the servo's control ticks; the simulated
-trajectory is sampled back at the run's own times.
+put on the servo's control ticks as the run's sidecar says they were applied: interpolated
+(Akima) between samples of a smooth command, or each goal held until the next sample when a
+recorder streamed them (``q_ref_between_samples: "held"``); the simulated trajectory is sampled
+back at the run's own times.
 """
 from __future__ import annotations
 
@@ -192,10 +194,17 @@ def start_state(sim: Simulator, run: Run) -> SimState:
 
 
 def command_ticks(run: Run, control_dt: float) -> np.ndarray:
-    """The run's ``q_ref`` (n_ticks, 11) [rad] interpolated onto control ticks from its first time.
+    """The run's ``q_ref`` (n_ticks, 11) [rad] on control ticks from its first time.
 
-    The interpolation is Akima's local cubic: a gait logged at 50 Hz is rebuilt 20 times closer
-    than by linear interpolation, which cuts a sinusoid's peaks by about (2 pi f dt)^2 / 8 of its
+    A run whose goals were held by the servos (:attr:`~cobra_model.run.Run.q_ref_held`, what
+    :mod:`hardware.recorder` writes) gets each row from its time until the next row's (a
+    zero-order hold): at 50 Hz that is, on average, half a period (10 ms) behind a smooth
+    command, 33 mrad at the yaw joints' peak speed; interpolating such goals instead made the
+    rms gap between an emulated recording and its simulation six times larger (13 vs 2 mrad,
+    ``tests/test_emulator_sim.py``).
+
+    Otherwise the rows sample a smooth command, rebuilt by Akima's local cubic: a gait logged at
+    50 Hz is rebuilt 20 times closer than by linear interpolation, which cuts a sinusoid's peaks by about (2 pi f dt)^2 / 8 of its
     amplitude and so biased the fitted transmission inertia by 2.6 % in
     ``benchmarks/recovery.py``; unlike a global cubic spline it does not overshoot a step command
     (PCHIP, also step-safe, flattens every sampled extremum and is barely better than linear there).
@@ -204,6 +213,9 @@ def command_ticks(run: Run, control_dt: float) -> np.ndarray:
     ticks = t0 + np.arange(int(np.floor((t1 - t0) / control_dt + 1e-9)) + 1) * control_dt
     if len(run.t) < 2:
         return np.repeat(run.q_ref[:1], len(ticks), axis=0)
+    if run.q_ref_held:
+        # a tick within 1 ns of a goal's time already sees that goal (times are float sums)
+        return run.q_ref[np.searchsorted(run.t, ticks + 1e-9, side="right") - 1]
     return Akima1DInterpolator(run.t, run.q_ref, axis=0)(np.minimum(ticks, t1))
 
 

@@ -26,6 +26,7 @@ def _samples(n: int) -> dict[str, np.ndarray]:
         "q": rng.normal(size=(n, 11)),
         "dq": rng.normal(size=(n, 11)),
         "current": rng.normal(size=(n, 11)),
+        "latency": rng.uniform(0.001, 0.004, n),
     }
 
 
@@ -33,16 +34,18 @@ def test_file_is_byte_identical_to_write_run(tmp_path: Path) -> None:
     s = _samples(20)
     writer = IncrementalRunWriter(tmp_path / "inc.csv", {"source": "hardware"})
     for k in range(20):
-        writer.append(s["t"][k], s["q_ref"][k], s["q"][k], s["dq"][k], s["current"][k])
+        writer.append(s["t"][k], s["q_ref"][k], s["q"][k], s["dq"][k], s["current"][k], s["latency"][k])
     writer.close()
     n = len(s["t"])
     reference = Run(t=s["t"], q_ref=s["q_ref"], q=s["q"], dq=s["dq"], current=s["current"],
-                    head_pos=np.full((n, 3), np.nan), head_quat=np.full((n, 4), np.nan))
+                    head_pos=np.full((n, 3), np.nan), head_quat=np.full((n, 4), np.nan),
+                    extra={"read_latency_s": s["latency"]})
     write_run(reference, tmp_path / "ref.csv")
     assert (tmp_path / "inc.csv").read_bytes() == (tmp_path / "ref.csv").read_bytes()
     run = read_run(tmp_path / "inc.csv")
     assert run.meta == {"format": "cobra-run/1", "source": "hardware"}
     np.testing.assert_array_equal(run.q, s["q"])
+    np.testing.assert_array_equal(run.extra["read_latency_s"].astype(float), s["latency"])
     assert np.isnan(run.head_pos).all() and np.isnan(run.head_quat).all()
 
 
@@ -50,7 +53,7 @@ def test_run_is_valid_while_being_written_and_notes_a_stop(tmp_path: Path) -> No
     s = _samples(5)
     writer = IncrementalRunWriter(tmp_path / "run.csv", {"source": "emulator", "notes": ["bench test"]})
     for k in range(3):
-        writer.append(s["t"][k], s["q_ref"][k], s["q"][k], s["dq"][k], s["current"][k])
+        writer.append(s["t"][k], s["q_ref"][k], s["q"][k], s["dq"][k], s["current"][k], s["latency"][k])
     during = read_run(tmp_path / "run.csv")
     assert during.n_samples == 3
     assert during.meta["notes"] == ["bench test", UNFINISHED_NOTE]
@@ -80,7 +83,7 @@ def test_samples_survive_a_killed_process(tmp_path: Path) -> None:
         from hardware.runwriter import IncrementalRunWriter
         w = IncrementalRunWriter({str(out)!r}, {{"source": "hardware"}})
         for k in range(40):
-            w.append(0.02 * k, np.zeros(11), np.full(11, k), np.zeros(11), np.zeros(11))
+            w.append(0.02 * k, np.zeros(11), np.full(11, k), np.zeros(11), np.zeros(11), 0.002)
         os.kill(os.getpid(), signal.SIGKILL)
     """)
     proc = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, timeout=60)
@@ -97,10 +100,10 @@ def test_a_full_disk_keeps_every_complete_sample_and_the_old_sidecar(tmp_path: P
     writer = IncrementalRunWriter(tmp_path / "full.csv", {"source": "test"})
     zeros = np.zeros(11)
     for k in range(3):
-        writer.append(0.02 * k, zeros, zeros, zeros, zeros)
+        writer.append(0.02 * k, zeros, zeros, zeros, zeros, 0.002)
     with pytest.raises(RunWriteError, match=r"cannot write sample 4 to .*full\.csv: the disk is full "
                                             r"\(No space left on device\); the file keeps the 3 samples before it"):
-        writer.append(0.06, zeros, zeros, zeros, zeros)  # 7 bytes of it land, then the disk is full
+        writer.append(0.06, zeros, zeros, zeros, zeros, 0.002)  # 7 bytes of it land, then the disk is full
     writer.close(notes=["partial run: disk full"])
     assert not writer.sidecar_updated and "could not be updated (No space left on device)" in writer.sidecar_error
     run = read_run(tmp_path / "full.csv")  # no half line: still a valid run

@@ -326,8 +326,10 @@ def test_empty_or_header_only_file(tmp_path: Path, content: str, expected: str) 
         ("{\"format\": \"cobra-run/2\"}", ["'cobra-run/2'", "expected 'cobra-run/1'"]),
         ("{\"source\": \"hardware\"}", ["\"format\" is missing", "'cobra-run/1'"]),
         ("[1, 2]", ["expected a JSON object"]),
+        ("{\"format\": \"cobra-run/1\", \"q_ref_between_samples\": \"linear\"}",
+         ["\"q_ref_between_samples\" is 'linear'", "expected \"smooth\"", "or \"held\""]),
     ],
-    ids=["trailing comma", "garbage", "wrong format", "no format", "not an object"],
+    ids=["trailing comma", "garbage", "wrong format", "no format", "not an object", "unknown command mode"],
 )
 def test_bad_sidecar_is_rejected(tmp_path: Path, sidecar: str, expected: list[str]) -> None:
     write_csv(tmp_path / "run.csv", HEADER, good_rows())
@@ -375,6 +377,7 @@ def test_missing_file_raises_file_not_found(tmp_path: Path) -> None:
         ({"extra": {"e": np.zeros(39)}}, "Run.extra['e']"),
         ({"dq": np.full((40, 11), np.inf)}, "Run.dq"),
         ({"meta": {"format": "other"}}, "'other'"),
+        ({"meta": {"q_ref_between_samples": "zoh"}}, "Run.meta: \"q_ref_between_samples\" is 'zoh'"),
     ],
 )
 def test_run_validation(overrides: dict[str, object], expected: str) -> None:

@@ -86,6 +86,24 @@ def test_commands_logged_at_50_hz_are_rebuilt_to_third_order():
     assert np.abs(ticks[:, 0] - exact).max() < linear / 10
 
 
+def test_held_goals_stay_until_the_next_sample():
+    """A recorder's goals (sidecar ``q_ref_between_samples: "held"``) are what the servos hold
+    between writes: each tick carries the latest goal sent at or before it, never a blend, and
+    a sample's own tick already has its goal (times jitter, as a host's clock does)."""
+    rng = np.random.default_rng(3)
+    t = 0.05 + np.cumsum(rng.uniform(0.018, 0.022, 100))
+    q_ref = np.tile(rng.normal(size=(100, 1)), (1, 11))
+    run = _command_run(t, q_ref).with_meta(q_ref_between_samples="held")
+    ticks = command_ticks(run, 1e-3)
+    tick_t = t[0] + np.arange(len(ticks)) * 1e-3
+    latest = np.array([np.flatnonzero(t <= tt + 1e-9)[-1] for tt in tick_t])
+    np.testing.assert_array_equal(ticks[:, 0], q_ref[latest, 0])
+    # every goal is held for a while (the last one from its time on, past the last tick maybe)
+    assert set(q_ref[:-1, 0]) <= set(ticks[:, 0])
+    smooth = command_ticks(_command_run(t, q_ref), 1e-3)
+    assert np.abs(smooth[:, 0] - ticks[:, 0]).max() > 0.1  # the default blends the same rows
+
+
 def test_step_commands_are_not_overshot():
     t = np.arange(0.0, 1.0, 0.02)
     q_ref = np.tile(np.where(t < 0.5, 0.0, 1.0)[:, None], (1, 11))
