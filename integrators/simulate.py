@@ -9,6 +9,7 @@ back at the run's own times.
 """
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import Callable
 
@@ -18,7 +19,7 @@ from scipy.interpolate import Akima1DInterpolator
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
-from cobra_model.run import Run
+from cobra_model.run import Q_REF_BETWEEN_SAMPLES, Run
 from integrators.simulator import SimSettings, SimState, Simulator, Trajectory
 
 #: Bodies a simulated run reports besides the head (the paper tracked the head, link 6 and the tail).
@@ -177,12 +178,20 @@ def simulate_gait(gait: SidewindingGait, duration: float, *, params: ModelParame
 def simulate_like(run: Run, *, params: ModelParameters | None = None, settings: SimSettings | None = None,
                   model: CobraModel | None = None, simulator: Simulator | None = None,
                   progress: Callable[[float], None] | None = None) -> Run:
-    """Reproduce ``run`` in simulation: same initial pose, same ``q_ref``, sampled at the run's times."""
+    """Reproduce ``run`` in simulation: same initial pose, same ``q_ref``, sampled at the run's times.
+
+    A run of held goals (:attr:`~cobra_model.run.Run.q_ref_held`) gives a run of held goals: its
+    ``q_ref`` rows are the run's own (the goal held at each sample time; sampling the simulated
+    goal ticks linearly would blend two goals around each sample) and its sidecar says
+    ``q_ref_between_samples: "held"``, so that the reproduction is reproduced alike."""
     sim = simulator or Simulator(model or CobraModel.load(), params or ModelParameters.nominal(), settings)
     traj = rollout_like(sim, run, progress=progress)
     gait = run.meta.get("gait") if isinstance(run.meta, dict) else None
-    return trajectory_to_run(sim.model, traj, t_out=run.t,
-                             meta=_meta(sim.params, sim.settings, gait, f"reproduction of {run.source or 'a run'}"))
+    meta = _meta(sim.params, sim.settings, gait, f"reproduction of {run.source or 'a run'}")
+    simulated = trajectory_to_run(sim.model, traj, t_out=run.t, meta=meta)
+    if run.q_ref_held:
+        simulated = dataclasses.replace(simulated, q_ref=run.q_ref, meta={**meta, Q_REF_BETWEEN_SAMPLES: "held"})
+    return simulated
 
 
 def start_state(sim: Simulator, run: Run) -> SimState:

@@ -104,6 +104,22 @@ def test_held_goals_stay_until_the_next_sample():
     assert np.abs(smooth[:, 0] - ticks[:, 0]).max() > 0.1  # the default blends the same rows
 
 
+def test_a_reproduction_of_held_goals_is_a_run_of_held_goals(recorded):
+    """``simulate_like`` of a recording keeps its goals and says they were held: its ``q_ref`` rows
+    are the recording's (not blends of two goals around each sample), so reproducing the
+    reproduction drives the servos exactly as the first did."""
+    from integrators.simulate import simulate_like
+
+    measured = recorded[0][0].slice_time(0.0, 0.6).with_meta(q_ref_between_samples="held")
+    held = simulate_like(measured)
+    assert held.q_ref_held and np.array_equal(held.q_ref, measured.q_ref)
+    np.testing.assert_array_equal(command_ticks(held, 1e-3), command_ticks(measured, 1e-3))
+    smooth = simulate_like(recorded[0][0].slice_time(0.0, 0.6))
+    assert not smooth.q_ref_held
+    # the joints followed other commands: held goals lag the interpolated ones by half a period
+    assert np.abs(held.q - smooth.q).max() > 1e-3
+
+
 def test_step_commands_are_not_overshot():
     t = np.arange(0.0, 1.0, 0.02)
     q_ref = np.tile(np.where(t < 0.5, 0.0, 1.0)[:, None], (1, 11))
