@@ -15,6 +15,7 @@ from cobra_model.motive import (
     TARGET_NAMES,
     merge_take_and_joints,
     read_joint_log,
+    recorded_run,
     read_motive_csv,
     resolve_mapping,
 )
@@ -26,8 +27,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "import-optitrack", help="merge an OptiTrack Motive take and a joint log into a run",
         description="Convert an OptiTrack Motive CSV export (rigid bodies) to the project's Z-up "
                     "world and merge it with a joint log (a run, or a CSV t, q_1..q_11 "
-                    "[, q_ref_1..q_ref_11]) into a cobra-run/1 run on the joint log's times. "
-                    "Rigid bodies named head, link_2..link_11 or tail are mapped automatically.")
+                    "[, q_ref_1..q_ref_11]) into a cobra-run/1 run on the joint log's times; a run "
+                    "(what `cobra record` writes) keeps its velocities, currents, extra columns and "
+                    "sidecar. Rigid bodies named head, link_2..link_11 or tail are mapped automatically.")
     p.add_argument("take", metavar="TAKE.csv", help="OptiTrack Motive CSV export (format 1.23)")
     p.add_argument("--joints", required=True, metavar="JOINTS.csv", help="joint log")
     p.add_argument("--out", required=True, metavar="RUN.csv", help="output run CSV (+ RUN.json)")
@@ -91,7 +93,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--time-offset must be a finite number of seconds, got {args.time_offset}")
     out = output_path(args.out, args.force)
     take = read_motive_csv(args.take)
-    joints = read_joint_log(args.joints)
+    recording = recorded_run(args.joints)  # a `cobra record` file: its currents, latency, sidecar are kept
+    joints = (recording.t, recording.q, recording.q_ref) if recording is not None else read_joint_log(args.joints)
     try:
         resolved = resolve_mapping(take, mapping)
     except InputError as exc:
@@ -101,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     if offset is None:
         estimate = estimate_clock_offset(take, joints, mapping=resolved, joint_log=str(args.joints))
         offset = estimate.offset_s
-    result = merge_take_and_joints(take, joints, mapping=resolved, time_offset=offset)
+    result = merge_take_and_joints(take, joints, mapping=resolved, time_offset=offset, recording=recording)
     if estimate is not None:
         result.meta["notes"].append(estimate.describe())
         result.meta["optitrack"]["time_offset_estimate"] = estimate.to_json()

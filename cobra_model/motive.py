@@ -411,8 +411,15 @@ def merge_take_and_joints(
     *,
     mapping: Mapping[str, str] | None = None,
     time_offset: float = 0.0,
+    recording: Run | None = None,
 ) -> Run:
     """Merge a Motive take and a joint log (:func:`read_joint_log`) into a hardware run.
+
+    ``recording``: the joint log as a run when it is one (:func:`recorded_run`, e.g. what
+    ``cobra record`` wrote; ``joints`` then are its ``t, q, q_ref``). Everything else it holds is
+    kept on the merged samples: joint velocities, motor currents, extra columns (the recorder's
+    ``read_latency_s``) and its sidecar (the gait, bus, timing, stop, notes and whether its goals
+    were held, which decides how the run is reproduced); the take's information is added.
 
     The run's times are the joint-log times ``t`` whose take time ``t + time_offset`` [s] lies in
     the take's span; they stay on the joint log's clock (the command's phase is preserved). Rigid
@@ -459,10 +466,16 @@ def merge_take_and_joints(
         notes.append("the joint log has no q_ref_* columns: q_ref is set equal to q")
     elif q_ref.shape != q.shape:
         raise InputError(f"joint log: q_ref has shape {q_ref.shape}; expected {q.shape}")
+    if recording is not None and recording.n_samples != t.size:
+        raise InputError(f"joint log {recording.source or ''}: the recording has {recording.n_samples} samples "
+                         f"but the joint arrays {t.size}; pass the recording's own t, q, q_ref")
+    kept = dict(recording.meta) if recording is not None else {}
+    earlier = kept.get("notes", [])
     meta = {
+        **kept,
         "format": FORMAT,
-        "source": "hardware",
-        "notes": notes,
+        "source": kept.get("source", "hardware"),
+        "notes": [*(earlier if isinstance(earlier, list) else [str(earlier)]), *notes],
         "optitrack": {
             "file": str(take.source),
             "take_name": take.info.get("Take Name", ""),
@@ -482,5 +495,20 @@ def merge_take_and_joints(
             tq, take.times, take.bodies[head_name].quats, max_gap_samples=0
         ),
         bodies=bodies,
+        dq=None if recording is None or recording.dq is None else recording.dq[keep],
+        current=None if recording is None or recording.current is None else recording.current[keep],
+        extra={} if recording is None else {name: values[keep] for name, values in recording.extra.items()},
         meta=meta,
     )
+
+
+def recorded_run(path: str | Path) -> Run | None:
+    """The joint log at ``path`` as a run when it is a ``cobra-run/1`` file (a ``cobra record``
+    recording), for :func:`merge_take_and_joints` to keep what it holds besides the joint
+    angles; None for a plain joint log.
+
+    Raises:
+        FileNotFoundError, InputError: as :func:`read_joint_log`.
+    """
+    path = Path(path)
+    return read_run(path) if "head_x" in read_csv_table(path).cells else None

@@ -16,8 +16,10 @@ from cobra_model.motive import (
     quat_multiply,
     read_joint_log,
     read_motive_csv,
+    recorded_run,
     resolve_mapping,
 )
+from cobra_model.run import Run
 
 DATA = Path(__file__).parent / "data"
 S = np.sqrt(0.5)
@@ -346,3 +348,36 @@ def test_small_data_files_merge_and_round_trip(tmp_path: Path) -> None:
     back = read_run(path)
     np.testing.assert_array_equal(back.head_pos, run.head_pos)
     assert back.meta == run.meta
+
+
+def test_a_recording_merged_with_a_take_keeps_everything_it_held(tmp_path: Path) -> None:
+    """A ``cobra record`` file merged with the take loses nothing the recorder wrote: velocities,
+    currents, the read-latency column and the sidecar (above all that its goals were held,
+    which decides how the run is reproduced)."""
+    t, q, q_ref = read_joint_log(DATA / "joints_small.csv")
+    n = t.size
+    rng = np.random.default_rng(4)
+    recorded = Run(t=t, q_ref=q_ref, q=q, dq=rng.normal(size=(n, NUM_JOINTS)), current=rng.normal(size=(n, NUM_JOINTS)),
+                   head_pos=np.full((n, 3), np.nan), head_quat=np.full((n, 4), np.nan),
+                   extra={"read_latency_s": rng.uniform(0.001, 0.003, n)},
+                   meta={"source": "emulator", "q_ref_between_samples": "held", "notes": ["bench run"],
+                         "timing": {"achieved_rate_hz": 49.9}})
+    path = write_run(recorded, tmp_path / "rec.csv")
+    assert recorded_run(DATA / "joints_small.csv") is None  # a plain joint log
+    recording = recorded_run(path)
+    take = read_motive_csv(DATA / "motive_take_small.csv")
+    # shifted so that the take covers only part of the recording: the kept rows are its rows
+    run = merge_take_and_joints(take, (recording.t, recording.q, recording.q_ref), recording=recording,
+                                time_offset=0.05)
+    keep = np.isin(t, run.t)
+    assert 5 < run.n_samples == keep.sum() < n
+    np.testing.assert_array_equal(run.dq, recorded.dq[keep])
+    np.testing.assert_array_equal(run.current, recorded.current[keep])
+    np.testing.assert_array_equal(run.extra["read_latency_s"].astype(float), recorded.extra["read_latency_s"][keep])
+    assert run.q_ref_held and run.meta["source"] == "emulator" and run.meta["timing"] == {"achieved_rate_hz": 49.9}
+    assert run.meta["notes"][0] == "bench run" and run.meta["notes"][1].startswith("merged OptiTrack take")
+    assert np.isfinite(run.head_pos).any() and run.meta["optitrack"]["frame_rate_hz"] == take.frame_rate
+    back = read_run(write_run(run, tmp_path / "merged.csv"))
+    assert back.q_ref_held and back.current is not None and "read_latency_s" in back.extra
+    with pytest.raises(InputError, match="the recording has 25 samples but the joint arrays 2"):
+        merge_take_and_joints(take, (t[:2], q[:2], q_ref[:2]), recording=recording)
