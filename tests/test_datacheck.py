@@ -100,6 +100,22 @@ def test_clamped_joints_are_named(runs):
     assert "joint 4 stays flat" in text and "joint 6 at its limit" in text
 
 
+def test_a_recording_with_a_servo_motion_profile_is_named(runs):
+    """The simulated servo steps to each goal; a recording whose servos ramped to it (a Profile
+    Velocity or Acceleration set in the sidecar's bus.servo, as ``cobra record`` writes it) is
+    named with both values, and one with both at 0 (the default) is not."""
+    from hardware.config import BusConfig
+
+    bus = BusConfig(port="/dev/null").to_json()
+    assert inspect_run(runs[0].with_meta(bus=bus), "plain.csv").clean
+    bus["servo"] = {**bus["servo"], "profile_velocity": 200, "profile_acceleration": 0}
+    f = inspect_run(runs[0].with_meta(bus=bus), "ramped.csv")
+    assert f.motion_profile == (200, 0) and f.has_problems
+    assert "ramped.csv: recorded with a servo motion profile (Profile Velocity 200, Profile Acceleration 0)" \
+        in "\n".join(f.problems())
+    assert f.to_json_dict()["motion_profile"] == {"profile_velocity": 200, "profile_acceleration": 0}
+
+
 def test_too_short_runs_are_fatal_before_any_simulation(runs):
     short = runs[0].slice_time(0.0, 1.0)
     check = check_runs([short], ModelParameters.nominal(), names=["short.csv"])

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import numpy as np
 
@@ -179,6 +179,10 @@ class RunFindings:
         gaps: the sample-rate gaps, in time order.
         dropouts: the head's motion-capture dropouts.
         saturated: joints at a limit or flat, by joint number.
+        motion_profile: the recording's servo Profile Velocity and Profile Acceleration (raw
+            register values, from the sidecar's ``bus.servo``) when either is not 0, else None:
+            the servos then ramped to each goal, which the simulated servo (a step to each
+            goal) does not.
     """
 
     name: str
@@ -190,16 +194,18 @@ class RunFindings:
     gaps: tuple[SampleGap, ...] = ()
     dropouts: Dropouts = field(default_factory=Dropouts)
     saturated: tuple[JointSaturation, ...] = ()
+    motion_profile: tuple[int, int] | None = None
 
     @property
     def clean(self) -> bool:
         """Nothing found."""
-        return not (self.too_short or self.gaps or self.dropouts.count or self.saturated)
+        return not (self.too_short or self.gaps or self.dropouts.count or self.saturated or self.motion_profile)
 
     @property
     def has_problems(self) -> bool:
         """Something found beyond minor dropouts (:attr:`Dropouts.minor`)."""
-        return bool(self.too_short or self.gaps or self.saturated or (self.dropouts.count and not self.dropouts.minor))
+        return bool(self.too_short or self.gaps or self.saturated or self.motion_profile
+                    or (self.dropouts.count and not self.dropouts.minor))
 
     @property
     def saturated_joints(self) -> tuple[int, ...]:
@@ -222,6 +228,11 @@ class RunFindings:
             out.append(f"{self.name}: {d.describe()}")
         for s in self.saturated:
             out.append(f"{self.name}: {s.describe()}")
+        if self.motion_profile:
+            out.append(f"{self.name}: recorded with a servo motion profile (Profile Velocity "
+                       f"{self.motion_profile[0]}, Profile Acceleration {self.motion_profile[1]}): the servos "
+                       f"ramped to each goal, the simulated servo steps to it; the model lags less than the "
+                       f"robot did (record with both at 0 to compare like with like)")
         return out
 
     def to_json_dict(self) -> dict[str, Any]:
@@ -237,7 +248,9 @@ class RunFindings:
                                       "commanded_swing_rad": s.commanded_swing_rad,
                                       "at_limit_fraction": s.at_limit_fraction,
                                       "at_limit_first_s": _finite(s.at_limit_first_s),
-                                      "limit_rad": _finite(s.limit_rad)} for s in self.saturated]}
+                                      "limit_rad": _finite(s.limit_rad)} for s in self.saturated],
+                "motion_profile": None if self.motion_profile is None else
+                {"profile_velocity": self.motion_profile[0], "profile_acceleration": self.motion_profile[1]}}
 
 
 def joint_limits(model: CobraModel | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -282,7 +295,20 @@ def inspect_run(run: Run, name: str | None = None, *, limits: tuple[np.ndarray, 
         if commanded >= MIN_COMMAND_SWING_RAD and swing < FLAT_RATIO * commanded:
             saturated.append(JointSaturation(j + 1, "flat", swing, commanded))
     return RunFindings(name, run.duration, run.n_samples, median, run.duration < min_duration_s, min_duration_s,
-                       gaps, _dropouts(t, run.head_pos, median), tuple(saturated))
+                       gaps, _dropouts(t, run.head_pos, median), tuple(saturated), _motion_profile(run.meta))
+
+
+def _motion_profile(meta: Mapping[str, Any]) -> tuple[int, int] | None:
+    """The sidecar's servo Profile Velocity and Acceleration (``bus.servo``, as ``cobra record``
+    writes it) when either is set (not 0); None when both are 0 or the sidecar does not say."""
+    bus = meta.get("bus")
+    servo = bus.get("servo") if isinstance(bus, Mapping) else None
+    if not isinstance(servo, Mapping):
+        return None
+    velocity, acceleration = servo.get("profile_velocity", 0), servo.get("profile_acceleration", 0)
+    if not all(isinstance(x, (int, float)) for x in (velocity, acceleration)) or (velocity, acceleration) == (0, 0):
+        return None
+    return int(velocity), int(acceleration)
 
 
 def _dropouts(t: np.ndarray, head_pos: np.ndarray, median_dt: float) -> Dropouts:
