@@ -13,9 +13,9 @@ from cobra_model.run_files import write_run
 from cobra_model.clock_alignment import estimate_clock_offset
 from cobra_model.motive import (
     TARGET_NAMES,
+    joint_arrays,
     merge_take_and_joints,
-    read_joint_log,
-    recorded_run,
+    read_joint_source,
     read_motive_csv,
     resolve_mapping,
 )
@@ -93,8 +93,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--time-offset must be a finite number of seconds, got {args.time_offset}")
     out = output_path(args.out, args.force)
     take = read_motive_csv(args.take)
-    recording = recorded_run(args.joints)  # a `cobra record` file: its currents, latency, sidecar are kept
-    joints = (recording.t, recording.q, recording.q_ref) if recording is not None else read_joint_log(args.joints)
+    joints = read_joint_source(args.joints)  # a `cobra record` run keeps its currents, latency, sidecar
     try:
         resolved = resolve_mapping(take, mapping)
     except InputError as exc:
@@ -102,9 +101,9 @@ def run(args: argparse.Namespace) -> int:
     estimate = None
     offset = args.time_offset
     if offset is None:
-        estimate = estimate_clock_offset(take, joints, mapping=resolved, joint_log=str(args.joints))
+        estimate = estimate_clock_offset(take, joint_arrays(joints), mapping=resolved, joint_log=str(args.joints))
         offset = estimate.offset_s
-    result = merge_take_and_joints(take, joints, mapping=resolved, time_offset=offset, recording=recording)
+    result = merge_take_and_joints(take, joints, mapping=resolved, time_offset=offset)
     if estimate is not None:
         result.meta["notes"].append(estimate.describe())
         result.meta["optitrack"]["time_offset_estimate"] = estimate.to_json()

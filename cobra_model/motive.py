@@ -322,16 +322,18 @@ def _rigid_bodies(table: CsvTable, labels: list[str], columns: dict[str, BodyCol
     return bodies
 
 
-def read_joint_log(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """Read joint angles from a ``cobra-run/1`` run or from a plain CSV ``t, q_1..q_11[, q_ref_*]``.
+#: A plain joint log: times (N,) [s], joint angles (N, 11) [rad], commanded angles (N, 11) [rad] or None.
+JointArrays = tuple[np.ndarray, np.ndarray, np.ndarray | None]
+
+
+def read_joint_source(path: str | Path) -> Run | JointArrays:
+    """Read a joint log: a ``cobra-run/1`` run (what ``cobra record`` writes) as the run, so that
+    :func:`merge_take_and_joints` keeps everything it holds, or a plain CSV
+    ``t, q_1..q_11[, q_ref_*]`` as its arrays.
 
     A file whose header has ``head_x`` is read as a run (:func:`cobra_model.run_files.read_run`);
     otherwise ``t`` and ``q_1..q_11`` are required, ``q_ref_1..q_ref_11`` optional (all or none)
     and other columns ignored.
-
-    Returns:
-        ``(t, q, q_ref)``: times (N,) [s], joint angles (N, 11) [rad] and commanded angles
-        (N, 11) [rad] or ``None`` when the log has none.
 
     Raises:
         FileNotFoundError: if the file does not exist.
@@ -341,8 +343,7 @@ def read_joint_log(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
     path = Path(path)
     table = read_csv_table(path)
     if "head_x" in table.cells:
-        run = read_run(path)
-        return run.t, run.q, run.q_ref
+        return read_run(path)
     table.check_reserved_names()
     table.require(["t", *joint_columns("q")])
     t = table.times("t")
@@ -351,6 +352,17 @@ def read_joint_log(path: str | Path) -> tuple[np.ndarray, np.ndarray, np.ndarray
     if table.group_present(joint_columns("q_ref"), "q_ref_*"):
         q_ref = np.column_stack([table.floats(c) for c in joint_columns("q_ref")])
     return t, q, q_ref
+
+
+def joint_arrays(source: Run | JointArrays) -> JointArrays:
+    """``(t, q, q_ref)`` of a joint log as :func:`read_joint_source` returns it."""
+    return (source.t, source.q, source.q_ref) if isinstance(source, Run) else source
+
+
+def read_joint_log(path: str | Path) -> JointArrays:
+    """``(t, q, q_ref)`` of the joint log at ``path`` (:func:`read_joint_source`): times (N,) [s],
+    joint angles (N, 11) [rad] and commanded angles (N, 11) [rad] or ``None`` when the log has none."""
+    return joint_arrays(read_joint_source(path))
 
 
 def resolve_mapping(take: MotiveTake, mapping: Mapping[str, str] | None = None) -> dict[str, str]:
@@ -407,17 +419,15 @@ def resolve_mapping(take: MotiveTake, mapping: Mapping[str, str] | None = None) 
 
 def merge_take_and_joints(
     take: MotiveTake,
-    joints: tuple[np.ndarray, np.ndarray, np.ndarray | None],
+    joints: Run | JointArrays,
     *,
     mapping: Mapping[str, str] | None = None,
     time_offset: float = 0.0,
-    recording: Run | None = None,
 ) -> Run:
-    """Merge a Motive take and a joint log (:func:`read_joint_log`) into a hardware run.
+    """Merge a Motive take and a joint log (:func:`read_joint_source`) into a hardware run.
 
-    ``recording``: the joint log as a run when it is one (:func:`recorded_run`, e.g. what
-    ``cobra record`` wrote; ``joints`` then are its ``t, q, q_ref``). Everything else it holds is
-    kept on the merged samples: joint velocities, motor currents, extra columns (the recorder's
+    A joint log that is a run (what ``cobra record`` wrote) keeps everything else it holds on the
+    merged samples: joint velocities, motor currents, extra columns (the recorder's
     ``read_latency_s``) and its sidecar (the gait, bus, timing, stop, notes and whether its goals
     were held, which decides how the run is reproduced); the take's information is added.
 
@@ -432,7 +442,8 @@ def merge_take_and_joints(
         InputError: if the joint log does not overlap the take, has the wrong shape, or the
             mapping is invalid (see :func:`resolve_mapping`).
     """
-    t, q, q_ref = (None if a is None else np.asarray(a, dtype=float) for a in joints)
+    recording = joints if isinstance(joints, Run) else None
+    t, q, q_ref = (None if a is None else np.asarray(a, dtype=float) for a in joint_arrays(joints))
     if t is None or q is None or t.ndim != 1 or q.shape != (t.size, NUM_JOINTS):
         raise InputError(
             f"joint log: expected t (N,) and q (N, {NUM_JOINTS}), got "
@@ -466,9 +477,6 @@ def merge_take_and_joints(
         notes.append("the joint log has no q_ref_* columns: q_ref is set equal to q")
     elif q_ref.shape != q.shape:
         raise InputError(f"joint log: q_ref has shape {q_ref.shape}; expected {q.shape}")
-    if recording is not None and recording.n_samples != t.size:
-        raise InputError(f"joint log {recording.source or ''}: the recording has {recording.n_samples} samples "
-                         f"but the joint arrays {t.size}; pass the recording's own t, q, q_ref")
     kept = dict(recording.meta) if recording is not None else {}
     earlier = kept.get("notes", [])
     meta = {
@@ -501,14 +509,3 @@ def merge_take_and_joints(
         meta=meta,
     )
 
-
-def recorded_run(path: str | Path) -> Run | None:
-    """The joint log at ``path`` as a run when it is a ``cobra-run/1`` file (a ``cobra record``
-    recording), for :func:`merge_take_and_joints` to keep what it holds besides the joint
-    angles; None for a plain joint log.
-
-    Raises:
-        FileNotFoundError, InputError: as :func:`read_joint_log`.
-    """
-    path = Path(path)
-    return read_run(path) if "head_x" in read_csv_table(path).cells else None

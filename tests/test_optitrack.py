@@ -15,8 +15,8 @@ from cobra_model.motive import (
     quat_from_matrix,
     quat_multiply,
     read_joint_log,
+    read_joint_source,
     read_motive_csv,
-    recorded_run,
     resolve_mapping,
 )
 from cobra_model.run import Run
@@ -363,12 +363,12 @@ def test_a_recording_merged_with_a_take_keeps_everything_it_held(tmp_path: Path)
                    meta={"source": "emulator", "q_ref_between_samples": "held", "notes": ["bench run"],
                          "timing": {"achieved_rate_hz": 49.9}})
     path = write_run(recorded, tmp_path / "rec.csv")
-    assert recorded_run(DATA / "joints_small.csv") is None  # a plain joint log
-    recording = recorded_run(path)
+    assert isinstance(read_joint_source(DATA / "joints_small.csv"), tuple)  # a plain joint log
+    recording = read_joint_source(path)
+    assert isinstance(recording, Run)
     take = read_motive_csv(DATA / "motive_take_small.csv")
     # shifted so that the take covers only part of the recording: the kept rows are its rows
-    run = merge_take_and_joints(take, (recording.t, recording.q, recording.q_ref), recording=recording,
-                                time_offset=0.05)
+    run = merge_take_and_joints(take, recording, time_offset=0.05)
     keep = np.isin(t, run.t)
     assert 5 < run.n_samples == keep.sum() < n
     np.testing.assert_array_equal(run.dq, recorded.dq[keep])
@@ -379,5 +379,3 @@ def test_a_recording_merged_with_a_take_keeps_everything_it_held(tmp_path: Path)
     assert np.isfinite(run.head_pos).any() and run.meta["optitrack"]["frame_rate_hz"] == take.frame_rate
     back = read_run(write_run(run, tmp_path / "merged.csv"))
     assert back.q_ref_held and back.current is not None and "read_latency_s" in back.extra
-    with pytest.raises(InputError, match="the recording has 25 samples but the joint arrays 2"):
-        merge_take_and_joints(take, (t[:2], q[:2], q_ref[:2]), recording=recording)
