@@ -9,9 +9,10 @@ sample is appended to the run file as it arrives (:class:`~hardware.runwriter.In
 
 Time: ``t`` of a sample is when its goal was sent, from the monotonic clock, relative to the
 start of recording; the present state is read right after, and the column ``read_latency_s``
-says how long after for each sample (``timing.read_latency_*`` in the sidecar sums it up). Cycles follow a fixed schedule ``t_k = k / rate``; a cycle that
-starts more than a period late skips the missed slots instead of bunching up, and the sidecar
-reports the achieved rate, the jitter of the cycle starts and the skipped slots.
+says how long after for each sample (``timing.read_latency_*`` in the sidecar sums it up).
+Cycles follow a fixed schedule ``t_k = k / rate``; a cycle that starts more than a period late
+skips the missed slots instead of bunching up, and the sidecar reports the achieved rate, the
+jitter of the cycle starts and the skipped slots.
 
 Safety: torque goes off (and the run is closed with a ``"partial run: <reason>"`` note) on
 Ctrl-C, on SIGTERM and SIGHUP (a process manager, ``timeout``, a closed terminal), when a

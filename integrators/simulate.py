@@ -213,9 +213,9 @@ def command_ticks(run: Run, control_dt: float) -> np.ndarray:
     ``tests/test_emulator_sim.py``).
 
     Otherwise the rows sample a smooth command, rebuilt by Akima's local cubic: a gait logged at
-    50 Hz is rebuilt 20 times closer than by linear interpolation, which cuts a sinusoid's peaks by about (2 pi f dt)^2 / 8 of its
-    amplitude and so biased the fitted transmission inertia by 2.6 % in
-    ``benchmarks/recovery.py``; unlike a global cubic spline it does not overshoot a step command
+    50 Hz is rebuilt 20 times closer than by linear interpolation, which cuts a sinusoid's peaks
+    by about (2 pi f dt)^2 / 8 of its amplitude and so biased the fitted transmission inertia by
+    2.6 % in ``benchmarks/recovery.py``; unlike a global cubic spline it does not overshoot a step command
     (PCHIP, also step-safe, flattens every sampled extremum and is barely better than linear there).
     """
     t0, t1 = float(run.t[0]), float(run.t[-1])
