@@ -12,6 +12,15 @@ the inverse mass matrix from the same pass) through :mod:`integrators.native`, s
 whole loop is compiled; a batch (:func:`batch_rollout_loop`) runs that loop for each of its
 environments on the worker threads.
 
+The helpers of one physics step are inlined into the loops (``inline="always"``, numba's IR
+inlining): a call from one compiled function to another hands over each array with an atomic
+reference-count increment and decrement (numba's ``NRT_incref``/``NRT_decref``), and those
+were about 10 % of a single rollout's step (perf) and more of a batch's, whose threads share the
+counts of the read-only arrays (the model's chain and contact features), a cache line that
+both cores then write at every step. Inlined, numba's reference-count pruning removes them;
+the arithmetic is the same, bit for bit. The soft-constraint law's solver (``nonnegative_qp``
+and its callers) stays out of line: inlined, its code made both laws slower.
+
 Conventions (Pinocchio's): a floating root has ``q = [p (3), quat x y z w (4), joints]`` and
 ``v = [v_lin (3), omega (3), joint rates]`` with both root velocities expressed in the root's
 local frame; the root's generalized force is (force, torque about its origin) in that frame.
@@ -94,7 +103,7 @@ STATUS_PENETRATION = 2
 STATUS_VELOCITY = 3
 
 
-@njit(cache=True, fastmath=False)
+@njit(cache=True, inline="always", fastmath=False)
 def _quat_xyzw_to_rot_into(R, qx: float, qy: float, qz: float, qw: float) -> None:
     """The rotation matrix of the quaternion ``(x, y, z, w)`` (normalised first) into ``R`` (3, 3)."""
     n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
@@ -110,7 +119,7 @@ def _quat_xyzw_to_rot_into(R, qx: float, qy: float, qz: float, qw: float) -> Non
     R[2, 2] = 1 - 2 * (x * x + y * y)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w, vo, aw):
     """World pose and velocity of every body of the tree (allocation-free).
 
@@ -177,7 +186,7 @@ def chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w,
             w[i, r] += aw[i, r] * qd
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def add_body_wrenches(tau, floating, parents, vidx, R, p, aw, fsum, msum):
     """Accumulate ``J^T`` of every body's world wrench into ``tau`` in one sweep from the leaves.
 
@@ -205,7 +214,7 @@ def add_body_wrenches(tau, floating, parents, vidx, R, p, aw, fsum, msum):
                 msum[par, c] += msum[i, c]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def cone_weights(v1: float, v2: float, eps: float, cone: float):
     """Weights on the two per-component Coulomb terms that shape the friction limit surface.
 
@@ -229,7 +238,7 @@ def cone_weights(v1: float, v2: float, eps: float, cone: float):
     return (r1 / norm) ** (p - 1.0), (r2 / norm) ** (p - 1.0)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def ground_tangent(R, b):
     """The contact frame's first axis ``t1`` (x, y) on the ground: body ``b``'s x axis projected
     on the ground and normalised (world x for a body standing upright); ``t2 = z x t1``."""
@@ -240,7 +249,7 @@ def ground_tangent(R, b):
     return 1.0, 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
                   f_body, f_kind, f_c, f_a, f_r, ground, tau, X, F, max_depth, kin_R, kin_v):
     """Stribeck ground (paper Eqs. 3-6) on every contact feature, accumulated as ``J^T F``.
@@ -337,7 +346,7 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
     return status
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def servo_duty(j, err_rad, integ, prev_err, kp, ki, kd, pwm_limit, duty_out):
     """Dynamixel X position loop of joint ``j``: PWM duty in [-1, 1] from its position error
     ``err_rad`` (goal - measured) [rad].
@@ -358,7 +367,7 @@ def servo_duty(j, err_rad, integ, prev_err, kp, ki, kd, pwm_limit, duty_out):
     duty_out[j] = u / PWM_FULL_SCALE
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def actuator_torques(duty, qd, torque_on, act, voltage, resistance, tau_out, current_out):
     """Spong's DC motor behind the gearbox, at the joint.
 
@@ -388,7 +397,7 @@ def actuator_torques(duty, qd, torque_on, act, voltage, resistance, tau_out, cur
         current_out[j] = i
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def check_state(v, max_speed):
     """STATUS_NONFINITE if any entry of v is not finite, STATUS_VELOCITY if any |v_i| > max_speed."""
     for i in range(v.shape[0]):
@@ -400,7 +409,7 @@ def check_state(v, max_speed):
     return STATUS_OK
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def control_tick(q, goal, act, scal, integ, prev_err, duty):
     """One tick of every servo's position loop (backlash as a dead zone on the error)."""
     nj = act.shape[0]
@@ -418,7 +427,7 @@ def control_tick(q, goal, act, scal, integ, prev_err, duty):
         servo_duty(j, err, integ, prev_err, scal[S_KP], scal[S_KI], scal[S_KD], scal[S_PWM_LIMIT], duty)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_R, chain_f,
                        feat_i, feat_f, tau, current, X, F, kin_R, kin_v):
     """Actuator torques and ground forces as one generalized force ``tau`` (nv,); returns a status.
@@ -439,7 +448,7 @@ def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain
                          feat_f[:, 3:6], feat_f[:, 6], ground, tau, X, F, scal[S_MAX_DEPTH], kin_R, kin_v)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def integrate(q, v, a, dt, floating, q_out, v_out):
     """Semi-implicit Euler: ``v+ = v + dt a``, ``q+ = pin.integrate(q, dt v+)``.
 
@@ -492,7 +501,7 @@ def integrate(q, v, a, dt, floating, q_out, v_out):
         q_out[start_q + i] = q[start_q + i] + dt * v_out[start_v + i]
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def pre_step(control, q, v, goal, integ, prev_err, duty, torque_on, act, scal, ground, floating,
              chain_i, chain_R, chain_f, feat_i, feat_f, tau, current, X, F, kin_R, kin_v):
     """A servo tick (when ``control``) then :func:`generalized_forces`; returns the status."""
@@ -528,7 +537,7 @@ def workspace_size(n_features: int, n_bodies: int) -> int:
     return 6 * n_features + 27 * n_bodies
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def workspace_views(work, n_features, n_bodies):
     """``X``, ``F``, ``kin_R``, ``kin_v`` as views of the flat ``work`` (:func:`workspace_size`)."""
     nf, nb = n_features, n_bodies
@@ -536,7 +545,7 @@ def workspace_views(work, n_features, n_bodies):
             work[6 * nf:6 * nf + 9 * nb].reshape((nb, 3, 3)), work[6 * nf + 9 * nb:6 * nf + 27 * nb].reshape((nb, 6, 3)))
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R, chain_f,
                  feat_i, feat_f, tau, work, record):
     """Step ``i`` of a rollout in one compiled call (one call per physics step, not three).
@@ -551,9 +560,18 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
 
     ``servo`` (4, nj) holds the position loops' integral, previous error, duty and the motor
     current [A]; ``work`` is the flat workspace (:func:`workspace_views`). The arguments are
-    packed this way because each one costs the call about 0.05 us. Returns 0, the status of
-    step 3, or minus the status of step 1.
+    packed this way because each one costs a call from Python about 0.05 us. Returns 0, the
+    status of step 3, or minus the status of step 1.
     """
+    X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
+    return _step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i,
+                 feat_f, tau, X, F, kin_R, kin_v, record)
+
+
+@njit(cache=True, inline="always")
+def _step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f,
+          tau, X, F, kin_R, kin_v, record):
+    """:func:`rollout_step` on the workspace's views (a loop makes them once, not at every step)."""
     floating = plan[P_FLOATING] != 0
     if i > 0 and plan[P_INTEGRATE]:
         integrate(q, v, a, scal[S_DT], floating, q, v)
@@ -568,7 +586,6 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
         row[nq + nv:] = servo[3]
     if i == plan[P_STEPS]:
         return STATUS_OK
-    X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
     return pre_step(i % plan[P_SUBSTEPS] == 0, q, v, goals[i // plan[P_SUBSTEPS]], servo[0], servo[1], servo[2],
                     torque_on, act, scal, ground, floating, chain_i, chain_R, chain_f, feat_i, feat_f, tau,
                     servo[3], X, F, kin_R, kin_v)
@@ -593,8 +610,8 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
     X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
     floating = plan[P_FLOATING] != 0
     for i in range(start, stop):
-        status = rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R,
-                              chain_f, feat_i, feat_f, tau, work, record)
+        status = _step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R, chain_f,
+                       feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
         if status != STATUS_OK or i == plan[P_STEPS]:
             return status, i
         if law == LAW_COMPLIANT:
