@@ -652,9 +652,12 @@ def batch_rollout_loop(aba_models, aba_data, law, PLAN, Q, V, A, goals, goal_ind
         # once would share one, written at every step (false sharing)
         q, v, a, servo, tau, work = Q[e].copy(), V[e].copy(), A[e].copy(), SERVO[e].copy(), TAU[e].copy(), WORK[e].copy()
         minv, warm = MINV[e].copy(), WARM[e].copy()
-        s, i = rollout_loop(0, PLAN[e, P_STEPS] + 1, aba_models[e], aba_data[e], law, PLAN[e], q, v, a,
-                            goals[:, goal_index[e]], servo, torque_on, act[e], scal, ground[e], chain_i, chain_R,
-                            chain_f, feat_i, feat_f, tau, work, RECORD[e], minv, WEIGHT[e], warm)
+        # and the arrays a step reads, too: every view a step takes of an array counts a reference
+        # on it (atomically), and two threads counting on one shared array write one cache line
+        s, i = rollout_loop(0, PLAN[e, P_STEPS] + 1, aba_models[e], aba_data[e], law, PLAN[e].copy(), q, v, a,
+                            goals[:, goal_index[e]].copy(), servo, torque_on.copy(), act[e].copy(), scal.copy(),
+                            ground[e].copy(), chain_i.copy(), chain_R.copy(), chain_f.copy(), feat_i.copy(),
+                            feat_f.copy(), tau, work, RECORD[e], minv, WEIGHT[e].copy(), warm)
         Q[e], V[e], A[e], SERVO[e], TAU[e], WORK[e], MINV[e], WARM[e] = q, v, a, servo, tau, work, minv, warm
         status[e] = s
         failed_at[e] = i
