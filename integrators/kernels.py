@@ -104,73 +104,80 @@ STATUS_VELOCITY = 3
 
 
 @njit(cache=True, inline="always", fastmath=False)
-def _quat_xyzw_to_rot_into(R, qx: float, qy: float, qz: float, qw: float) -> None:
-    """The rotation matrix of the quaternion ``(x, y, z, w)`` (normalised first) into ``R`` (3, 3)."""
+def _quat_xyzw_to_rot_into(R, b: int, qx: float, qy: float, qz: float, qw: float) -> None:
+    """The rotation matrix of the quaternion ``(x, y, z, w)`` (normalised first) into ``R[b]`` (3, 3)."""
     n = np.sqrt(qx * qx + qy * qy + qz * qz + qw * qw)
     x, y, z, w = qx / n, qy / n, qz / n, qw / n
-    R[0, 0] = 1 - 2 * (y * y + z * z)
-    R[0, 1] = 2 * (x * y - z * w)
-    R[0, 2] = 2 * (x * z + y * w)
-    R[1, 0] = 2 * (x * y + z * w)
-    R[1, 1] = 1 - 2 * (x * x + z * z)
-    R[1, 2] = 2 * (y * z - x * w)
-    R[2, 0] = 2 * (x * z - y * w)
-    R[2, 1] = 2 * (y * z + x * w)
-    R[2, 2] = 1 - 2 * (x * x + y * y)
+    R[b, 0, 0] = 1 - 2 * (y * y + z * z)
+    R[b, 0, 1] = 2 * (x * y - z * w)
+    R[b, 0, 2] = 2 * (x * z + y * w)
+    R[b, 1, 0] = 2 * (x * y + z * w)
+    R[b, 1, 1] = 1 - 2 * (x * x + z * z)
+    R[b, 1, 2] = 2 * (y * z - x * w)
+    R[b, 2, 0] = 2 * (x * z - y * w)
+    R[b, 2, 1] = 2 * (y * z + x * w)
+    R[b, 2, 2] = 1 - 2 * (x * x + y * y)
 
 
 @njit(cache=True, inline="always")
-def chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w, vo, aw):
+def chain_kinematics(q, v, floating, chain_i, chain_R, chain_f, kin_R, kin_v):
     """World pose and velocity of every body of the tree (allocation-free).
 
     Args:
         q, v: configuration (nq,) and velocity (nv,) in Pinocchio's convention.
         floating: True when body 0 is a free-flyer root.
-        parents: (nb,) parent body index, -1 for the universe.
-        jR, jp: (nb, 3, 3), (nb, 3) joint placement in the parent body frame.
-        axes: (nb, 3) revolute axis in the joint frame (unused for a floating root).
-        qidx, vidx: (nb,) index of each revolute joint's coordinate in q and v.
-        R, p, w, vo, aw: outputs (nb, 3, 3), (nb, 3) x4: world rotation, origin [m], angular
-            velocity [rad/s], origin velocity [m/s] and the joint axis in the world frame.
+        chain_i: (nb, 3) per body its parent (-1 for the universe) and the index of its
+            revolute joint's coordinate in q and in v.
+        chain_R, chain_f: (nb, 3, 3) and (nb, 6): the joint placement in the parent body frame
+            (rotation; translation in ``chain_f[:, :3]``) and the revolute axis in the joint
+            frame (``chain_f[:, 3:]``, unused for a floating root).
+        kin_R: output (nb, 3, 3), the bodies' world rotations.
+        kin_v: output (nb, 6, 3); rows 0-3 of each body: world origin [m], angular velocity
+            [rad/s], origin velocity [m/s] and the joint axis in the world frame.
+
+    The packed arrays are indexed, not sliced: a slice is a view, which costs an atomic
+    reference count in numba (see the module's docstring).
     """
-    nb = parents.shape[0]
+    R = kin_R
+    nb = chain_i.shape[0]
     for i in range(nb):
         if floating and i == 0:
-            _quat_xyzw_to_rot_into(R[0], q[3], q[4], q[5], q[6])
+            _quat_xyzw_to_rot_into(R, 0, q[3], q[4], q[5], q[6])
             for r in range(3):
-                p[0, r] = q[r]
-                w[0, r] = R[0, r, 0] * v[3] + R[0, r, 1] * v[4] + R[0, r, 2] * v[5]
-                vo[0, r] = R[0, r, 0] * v[0] + R[0, r, 1] * v[1] + R[0, r, 2] * v[2]
-                aw[0, r] = 0.0
+                kin_v[0, 0, r] = q[r]
+                kin_v[0, 1, r] = R[0, r, 0] * v[3] + R[0, r, 1] * v[4] + R[0, r, 2] * v[5]
+                kin_v[0, 2, r] = R[0, r, 0] * v[0] + R[0, r, 1] * v[1] + R[0, r, 2] * v[2]
+                kin_v[0, 3, r] = 0.0
             continue
-        par = parents[i]
+        par = chain_i[i, 0]
         if par < 0:
             for r in range(3):
-                p[i, r] = jp[i, r]
-                w[i, r] = 0.0
-                vo[i, r] = 0.0
+                kin_v[i, 0, r] = chain_f[i, r]
+                kin_v[i, 1, r] = 0.0
+                kin_v[i, 2, r] = 0.0
         else:
             for r in range(3):
-                acc = p[par, r]
+                acc = kin_v[par, 0, r]
                 for c in range(3):
-                    acc += R[par, r, c] * jp[i, c]
-                p[i, r] = acc
-            dx = p[i, 0] - p[par, 0]
-            dy = p[i, 1] - p[par, 1]
-            dz = p[i, 2] - p[par, 2]
-            wx, wy, wz = w[par, 0], w[par, 1], w[par, 2]
-            vo[i, 0] = vo[par, 0] + wy * dz - wz * dy
-            vo[i, 1] = vo[par, 1] + wz * dx - wx * dz
-            vo[i, 2] = vo[par, 2] + wx * dy - wy * dx
-            w[i, 0], w[i, 1], w[i, 2] = wx, wy, wz
+                    acc += R[par, r, c] * chain_f[i, c]
+                kin_v[i, 0, r] = acc
+            dx = kin_v[i, 0, 0] - kin_v[par, 0, 0]
+            dy = kin_v[i, 0, 1] - kin_v[par, 0, 1]
+            dz = kin_v[i, 0, 2] - kin_v[par, 0, 2]
+            wx, wy, wz = kin_v[par, 1, 0], kin_v[par, 1, 1], kin_v[par, 1, 2]
+            kin_v[i, 2, 0] = kin_v[par, 2, 0] + wy * dz - wz * dy
+            kin_v[i, 2, 1] = kin_v[par, 2, 1] + wz * dx - wx * dz
+            kin_v[i, 2, 2] = kin_v[par, 2, 2] + wx * dy - wy * dx
+            kin_v[i, 1, 0], kin_v[i, 1, 1], kin_v[i, 1, 2] = wx, wy, wz
         # the joint's rotation about its axis (Rodrigues), as scalars
-        a0, a1, a2 = axes[i, 0], axes[i, 1], axes[i, 2]
-        cth, sth = np.cos(q[qidx[i]]), np.sin(q[qidx[i]])
+        a0, a1, a2 = chain_f[i, 3], chain_f[i, 4], chain_f[i, 5]
+        cth, sth = np.cos(q[chain_i[i, 1]]), np.sin(q[chain_i[i, 1]])
         C = 1.0 - cth
         ra00, ra01, ra02 = cth + a0 * a0 * C, a0 * a1 * C - a2 * sth, a0 * a2 * C + a1 * sth
         ra10, ra11, ra12 = a1 * a0 * C + a2 * sth, cth + a1 * a1 * C, a1 * a2 * C - a0 * sth
         ra20, ra21, ra22 = a2 * a0 * C - a1 * sth, a2 * a1 * C + a0 * sth, cth + a2 * a2 * C
-        qd = v[vidx[i]]
+        qd = v[chain_i[i, 2]]
+        jR = chain_R
         for r in range(3):
             # row r of the joint frame's world rotation R_parent jR (jR alone under the universe)
             if par < 0:
@@ -182,36 +189,38 @@ def chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w,
             R[i, r, 0] = j0 * ra00 + j1 * ra10 + j2 * ra20
             R[i, r, 1] = j0 * ra01 + j1 * ra11 + j2 * ra21
             R[i, r, 2] = j0 * ra02 + j1 * ra12 + j2 * ra22
-            aw[i, r] = j0 * a0 + j1 * a1 + j2 * a2
-            w[i, r] += aw[i, r] * qd
+            kin_v[i, 3, r] = j0 * a0 + j1 * a1 + j2 * a2
+            kin_v[i, 1, r] += kin_v[i, 3, r] * qd
 
 
 @njit(cache=True, inline="always")
-def add_body_wrenches(tau, floating, parents, vidx, R, p, aw, fsum, msum):
+def add_body_wrenches(tau, floating, chain_i, kin_R, kin_v):
     """Accumulate ``J^T`` of every body's world wrench into ``tau`` in one sweep from the leaves.
 
-    ``fsum[i]`` [N] and ``msum[i]`` [N m] (moment about the world origin) hold the wrench applied
-    to body ``i`` and are overwritten by its subtree's. A revolute joint takes the subtree's
-    moment about its origin along its world axis; a floating root takes the force and the moment
-    about its origin in its own frame (Pinocchio's convention). Bodies are in Pinocchio's order
-    (a parent before its children).
+    ``kin_v[i, 4]`` [N] and ``kin_v[i, 5]`` [N m] (moment about the world origin) hold the
+    wrench applied to body ``i`` and are overwritten by its subtree's; ``kin_R`` and rows 0 and
+    3 of ``kin_v`` are :func:`chain_kinematics`' rotations, origins and world joint axes. A
+    revolute joint takes the subtree's moment about its origin along its world axis; a floating
+    root takes the force and the moment about its origin in its own frame (Pinocchio's
+    convention). Bodies are in Pinocchio's order (a parent before its children).
     """
-    for i in range(parents.shape[0] - 1, -1, -1):
-        f0, f1, f2 = fsum[i, 0], fsum[i, 1], fsum[i, 2]
-        mx = msum[i, 0] - (p[i, 1] * f2 - p[i, 2] * f1)
-        my = msum[i, 1] - (p[i, 2] * f0 - p[i, 0] * f2)
-        mz = msum[i, 2] - (p[i, 0] * f1 - p[i, 1] * f0)
+    R = kin_R
+    for i in range(chain_i.shape[0] - 1, -1, -1):
+        f0, f1, f2 = kin_v[i, 4, 0], kin_v[i, 4, 1], kin_v[i, 4, 2]
+        mx = kin_v[i, 5, 0] - (kin_v[i, 0, 1] * f2 - kin_v[i, 0, 2] * f1)
+        my = kin_v[i, 5, 1] - (kin_v[i, 0, 2] * f0 - kin_v[i, 0, 0] * f2)
+        mz = kin_v[i, 5, 2] - (kin_v[i, 0, 0] * f1 - kin_v[i, 0, 1] * f0)
         if floating and i == 0:
             for c in range(3):
                 tau[c] += R[0, 0, c] * f0 + R[0, 1, c] * f1 + R[0, 2, c] * f2
                 tau[3 + c] += R[0, 0, c] * mx + R[0, 1, c] * my + R[0, 2, c] * mz
         else:
-            tau[vidx[i]] += aw[i, 0] * mx + aw[i, 1] * my + aw[i, 2] * mz
-        par = parents[i]
+            tau[chain_i[i, 2]] += kin_v[i, 3, 0] * mx + kin_v[i, 3, 1] * my + kin_v[i, 3, 2] * mz
+        par = chain_i[i, 0]
         if par >= 0:
             for c in range(3):
-                fsum[par, c] += fsum[i, c]
-                msum[par, c] += msum[i, c]
+                kin_v[par, 4, c] += kin_v[i, 4, c]
+                kin_v[par, 5, c] += kin_v[i, 5, c]
 
 
 @njit(cache=True, inline="always")
@@ -250,8 +259,8 @@ def ground_tangent(R, b):
 
 
 @njit(cache=True, inline="always")
-def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
-                  f_body, f_kind, f_c, f_a, f_r, ground, tau, X, F, max_depth, kin_R, kin_v):
+def ground_forces(q, v, floating, chain_i, chain_R, chain_f, feat_i, feat_f, ground, tau, X, F, max_depth, kin_R,
+                  kin_v):
     """Stribeck ground (paper Eqs. 3-6) on every contact feature, accumulated as ``J^T F``.
 
     Contact points: a point feature touches at ``centre - radius z``; a circle feature (a
@@ -278,29 +287,32 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
     Outputs ``X`` (nf, 3) contact points [m] and ``F`` (nf, 3) world forces [N]; ``kin_R``
     (nb, 3, 3) and ``kin_v`` (nb, 6, 3) are the workspace: the bodies' rotations and their
     origins, angular and origin velocities and joint axes (:func:`chain_kinematics`), then the
-    wrenches of :func:`add_body_wrenches`.
+    wrenches of :func:`add_body_wrenches`. The chain's arrays are :func:`chain_kinematics`';
+    ``feat_i`` (nf, 2) = body, kind; ``feat_f`` (nf, 7) = centre (3), axis (3), radius, in the
+    body's frame.
     """
-    R, p, w, vo, aw = kin_R, kin_v[:, 0], kin_v[:, 1], kin_v[:, 2], kin_v[:, 3]
-    fsum, msum = kin_v[:, 4], kin_v[:, 5]
-    fsum[:] = 0.0
-    msum[:] = 0.0
-    chain_kinematics(q, v, floating, parents, jR, jp, axes, qidx, vidx, R, p, w, vo, aw)
+    R = kin_R
+    for i in range(kin_v.shape[0]):
+        for c in range(3):
+            kin_v[i, 4, c] = 0.0
+            kin_v[i, 5, c] = 0.0
+    chain_kinematics(q, v, floating, chain_i, chain_R, chain_f, kin_R, kin_v)
     k1, k2 = ground[G_K1], ground[G_K2]
     mu_c, mu_s, mu_v, v_s = ground[G_MU_C], ground[G_MU_S], ground[G_MU_V], ground[G_V_S]
     eps, lateral, cone, rounding = ground[G_EPS], ground[G_LATERAL], ground[G_CONE], ground[G_ROUND]
     status = STATUS_OK
-    for k in range(f_body.shape[0]):
-        b = f_body[k]
-        c0 = p[b, 0] + R[b, 0, 0] * f_c[k, 0] + R[b, 0, 1] * f_c[k, 1] + R[b, 0, 2] * f_c[k, 2]
-        c1 = p[b, 1] + R[b, 1, 0] * f_c[k, 0] + R[b, 1, 1] * f_c[k, 1] + R[b, 1, 2] * f_c[k, 2]
-        c2 = p[b, 2] + R[b, 2, 0] * f_c[k, 0] + R[b, 2, 1] * f_c[k, 1] + R[b, 2, 2] * f_c[k, 2]
-        rad = f_r[k]
-        if f_kind[k] == FEATURE_POINT:
+    for k in range(feat_i.shape[0]):
+        b = feat_i[k, 0]
+        c0 = kin_v[b, 0, 0] + R[b, 0, 0] * feat_f[k, 0] + R[b, 0, 1] * feat_f[k, 1] + R[b, 0, 2] * feat_f[k, 2]
+        c1 = kin_v[b, 0, 1] + R[b, 1, 0] * feat_f[k, 0] + R[b, 1, 1] * feat_f[k, 1] + R[b, 1, 2] * feat_f[k, 2]
+        c2 = kin_v[b, 0, 2] + R[b, 2, 0] * feat_f[k, 0] + R[b, 2, 1] * feat_f[k, 1] + R[b, 2, 2] * feat_f[k, 2]
+        rad = feat_f[k, 6]
+        if feat_i[k, 1] == FEATURE_POINT:
             x0, x1, x2 = c0, c1, c2 - rad
         else:
-            a0 = R[b, 0, 0] * f_a[k, 0] + R[b, 0, 1] * f_a[k, 1] + R[b, 0, 2] * f_a[k, 2]
-            a1 = R[b, 1, 0] * f_a[k, 0] + R[b, 1, 1] * f_a[k, 1] + R[b, 1, 2] * f_a[k, 2]
-            a2 = R[b, 2, 0] * f_a[k, 0] + R[b, 2, 1] * f_a[k, 1] + R[b, 2, 2] * f_a[k, 2]
+            a0 = R[b, 0, 0] * feat_f[k, 3] + R[b, 0, 1] * feat_f[k, 4] + R[b, 0, 2] * feat_f[k, 5]
+            a1 = R[b, 1, 0] * feat_f[k, 3] + R[b, 1, 1] * feat_f[k, 4] + R[b, 1, 2] * feat_f[k, 5]
+            a2 = R[b, 2, 0] * feat_f[k, 3] + R[b, 2, 1] * feat_f[k, 4] + R[b, 2, 2] * feat_f[k, 5]
             # -(z - (z.a) a): the in-plane direction of steepest descent
             d0, d1, d2 = a0 * a2, a1 * a2, a2 * a2 - 1.0
             n = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
@@ -318,10 +330,10 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
             continue
         if -x2 > max_depth:
             status = STATUS_PENETRATION
-        rx, ry, rz = x0 - p[b, 0], x1 - p[b, 1], x2 - p[b, 2]
-        xv0 = vo[b, 0] + w[b, 1] * rz - w[b, 2] * ry
-        xv1 = vo[b, 1] + w[b, 2] * rx - w[b, 0] * rz
-        xv2 = vo[b, 2] + w[b, 0] * ry - w[b, 1] * rx
+        rx, ry, rz = x0 - kin_v[b, 0, 0], x1 - kin_v[b, 0, 1], x2 - kin_v[b, 0, 2]
+        xv0 = kin_v[b, 2, 0] + kin_v[b, 1, 1] * rz - kin_v[b, 1, 2] * ry
+        xv1 = kin_v[b, 2, 1] + kin_v[b, 1, 2] * rx - kin_v[b, 1, 0] * rz
+        xv2 = kin_v[b, 2, 2] + kin_v[b, 1, 0] * ry - kin_v[b, 1, 1] * rx
         fz = -k1 * x2 - k2 * xv2
         if fz <= 0.0:
             continue
@@ -336,13 +348,13 @@ def ground_forces(q, v, floating, parents, jR, jp, axes, qidx, vidx,
         fx = f1 * t1x - f2 * t1y
         fy = f1 * t1y + f2 * t1x
         F[k, 0], F[k, 1], F[k, 2] = fx, fy, fz
-        fsum[b, 0] += fx
-        fsum[b, 1] += fy
-        fsum[b, 2] += fz
-        msum[b, 0] += x1 * fz - x2 * fy
-        msum[b, 1] += x2 * fx - x0 * fz
-        msum[b, 2] += x0 * fy - x1 * fx
-    add_body_wrenches(tau, floating, parents, vidx, R, p, aw, fsum, msum)
+        kin_v[b, 4, 0] += fx
+        kin_v[b, 4, 1] += fy
+        kin_v[b, 4, 2] += fz
+        kin_v[b, 5, 0] += x1 * fz - x2 * fy
+        kin_v[b, 5, 1] += x2 * fx - x0 * fz
+        kin_v[b, 5, 2] += x0 * fy - x1 * fx
+    add_body_wrenches(tau, floating, chain_i, kin_R, kin_v)
     return status
 
 
@@ -368,32 +380,35 @@ def servo_duty(j, err_rad, integ, prev_err, kp, ki, kd, pwm_limit, duty_out):
 
 
 @njit(cache=True, inline="always")
-def actuator_torques(duty, qd, torque_on, act, voltage, resistance, tau_out, current_out):
+def actuator_torques(duty, v, torque_on, act, voltage, resistance, tau, current_out):
     """Spong's DC motor behind the gearbox, at the joint.
 
     ``i = (duty V - r Km qdot) / R`` [A], ``tau = r Km i - b qdot - tau_c tanh(qdot / eps_c)``
     with the motor torque ``r Km i`` clipped at ``tau_max`` [N m] as a current limit clips it:
     the current too, at ``tau_max / (r Km)`` (``act`` columns: damping b, r*Km, Coulomb tau_c,
     tau_max, eps_c). With torque off the motor circuit is open: no motor torque, no current.
+    ``v`` (nv,) and ``tau`` (nv,): the joints' rates and torques are their last ``nj`` entries
+    (``duty`` (nj,)), read and written in place (a slice would be a view, see the module's docstring).
     """
+    nbase = v.shape[0] - duty.shape[0]
     for j in range(duty.shape[0]):
         rkm = act[j, A_RKM]
         if torque_on[j]:
-            i = (duty[j] * voltage - rkm * qd[j]) / resistance
+            i = (duty[j] * voltage - rkm * v[nbase + j]) / resistance
         else:
             i = 0.0
-        tau = rkm * i
+        t = rkm * i
         tmax = act[j, A_TAU_MAX]
-        if tau > tmax:
-            tau = tmax
+        if t > tmax:
+            t = tmax
             i = tmax / rkm
-        elif tau < -tmax:
-            tau = -tmax
+        elif t < -tmax:
+            t = -tmax
             i = -tmax / rkm
-        tau -= act[j, A_DAMPING] * qd[j]
+        t -= act[j, A_DAMPING] * v[nbase + j]
         if act[j, A_COULOMB] > 0.0:
-            tau -= act[j, A_COULOMB] * np.tanh(qd[j] / act[j, A_COULOMB_EPS])
-        tau_out[j] = tau
+            t -= act[j, A_COULOMB] * np.tanh(v[nbase + j] / act[j, A_COULOMB_EPS])
+        tau[nbase + j] = t
         current_out[j] = i
 
 
@@ -437,15 +452,12 @@ def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain
     ``feat_f`` (nf, 7) = centre (3), axis (3), radius; ``kin_R``, ``kin_v``: the workspace of
     :func:`ground_forces`.
     """
-    nj = act.shape[0]
-    nbase = v.shape[0] - nj
+    nbase = v.shape[0] - act.shape[0]
     for i in range(nbase):
         tau[i] = 0.0
-    tau_j = tau[nbase:]
-    actuator_torques(duty, v[nbase:], torque_on, act, scal[S_VOLTAGE], scal[S_RESISTANCE], tau_j, current)
-    return ground_forces(q, v, floating, chain_i[:, 0], chain_R, chain_f[:, 0:3], chain_f[:, 3:6],
-                         chain_i[:, 1], chain_i[:, 2], feat_i[:, 0], feat_i[:, 1], feat_f[:, 0:3],
-                         feat_f[:, 3:6], feat_f[:, 6], ground, tau, X, F, scal[S_MAX_DEPTH], kin_R, kin_v)
+    actuator_torques(duty, v, torque_on, act, scal[S_VOLTAGE], scal[S_RESISTANCE], tau, current)
+    return ground_forces(q, v, floating, chain_i, chain_R, chain_f, feat_i, feat_f, ground, tau, X, F,
+                         scal[S_MAX_DEPTH], kin_R, kin_v)
 
 
 @njit(cache=True, inline="always")
