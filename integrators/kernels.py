@@ -13,13 +13,15 @@ whole loop is compiled; a batch (:func:`batch_rollout_loop`) runs that loop for 
 environments on the worker threads.
 
 The helpers of one physics step are inlined into the loops (``inline="always"``, numba's IR
-inlining): a call from one compiled function to another hands over each array with an atomic
-reference-count increment and decrement (numba's ``NRT_incref``/``NRT_decref``), and those
-were about 10 % of a single rollout's step (perf) and more of a batch's, whose threads share the
-counts of the read-only arrays (the model's chain and contact features), a cache line that
-both cores then write at every step. Inlined, numba's reference-count pruning removes them;
-the arithmetic is the same, bit for bit. The soft-constraint law's solver (``nonnegative_qp``
-and its callers) stays out of line: inlined, its code made both laws slower.
+inlining), and they index the packed arrays (``chain_i[i, 0]``) rather than slice them: a call
+from one compiled function to another hands over each array, and a slice makes a view, each
+with an atomic reference-count increment and decrement (numba's ``NRT_incref``/``NRT_decref``).
+Those were about 10 % of a single rollout's step (perf) and more of a batch's, whose threads
+counted on the same read-only arrays (a cache line both cores then wrote at every step; each
+thread now reads copies of its own, :func:`batch_rollout_loop`). Inlined, numba's
+reference-count pruning removes most of the rest. The arithmetic is the same, bit for bit. The
+soft-constraint law's solver (``nonnegative_qp`` and its callers) stays out of line: inlined,
+its code made both laws slower.
 
 Conventions (Pinocchio's): a floating root has ``q = [p (3), quat x y z w (4), joints]`` and
 ``v = [v_lin (3), omega (3), joint rates]`` with both root velocities expressed in the root's
@@ -576,14 +578,15 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
     status of step 3, or minus the status of step 1.
     """
     X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
-    return _step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i,
-                 feat_f, tau, X, F, kin_R, kin_v, record)
+    return _step(i, plan, q, v, a, goals, servo[0], servo[1], servo[2], servo[3], torque_on, act, scal, ground,
+                 chain_i, chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
 
 
 @njit(cache=True, inline="always")
-def _step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f,
-          tau, X, F, kin_R, kin_v, record):
-    """:func:`rollout_step` on the workspace's views (a loop makes them once, not at every step)."""
+def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, act, scal, ground, chain_i, chain_R,
+          chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record):
+    """:func:`rollout_step` on the views of the workspace and of ``servo``'s rows (a loop makes
+    them once, not at every step: each view costs an atomic reference count)."""
     floating = plan[P_FLOATING] != 0
     if i > 0 and plan[P_INTEGRATE]:
         integrate(q, v, a, scal[S_DT], floating, q, v)
@@ -595,12 +598,12 @@ def _step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i,
         nq, nv = q.shape[0], v.shape[0]
         row[:nq] = q
         row[nq:nq + nv] = v
-        row[nq + nv:] = servo[3]
+        row[nq + nv:] = current
     if i == plan[P_STEPS]:
         return STATUS_OK
-    return pre_step(i % plan[P_SUBSTEPS] == 0, q, v, goals[i // plan[P_SUBSTEPS]], servo[0], servo[1], servo[2],
+    return pre_step(i % plan[P_SUBSTEPS] == 0, q, v, goals[i // plan[P_SUBSTEPS]], integ, prev_err, duty,
                     torque_on, act, scal, ground, floating, chain_i, chain_R, chain_f, feat_i, feat_f, tau,
-                    servo[3], X, F, kin_R, kin_v)
+                    current, X, F, kin_R, kin_v)
 
 
 @njit(cache=True)
@@ -620,16 +623,19 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
     records). A caller runs the rollout in chunks to report progress between them.
     """
     X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
+    integ, prev_err, duty, current = servo[0], servo[1], servo[2], servo[3]
+    # the arrays' addresses for Pinocchio, taken once (the loop updates the arrays in place)
+    qp, vp, taup, ap, minvp = q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes
     floating = plan[P_FLOATING] != 0
     for i in range(start, stop):
-        status = _step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, chain_i, chain_R, chain_f,
-                       feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
+        status = _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, act, scal, ground, chain_i,
+                       chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
         if status != STATUS_OK or i == plan[P_STEPS]:
             return status, i
         if law == LAW_COMPLIANT:
-            ABA(aba_model, aba_data, q.ctypes, v.ctypes, tau.ctypes, a.ctypes)
+            ABA(aba_model, aba_data, qp, vp, taup, ap)
         else:
-            ABA_MINVERSE(aba_model, aba_data, q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes)
+            ABA_MINVERSE(aba_model, aba_data, qp, vp, taup, ap, minvp)
             soft_contact_acceleration(v, minv, floating, chain_i[:, 0], chain_i[:, 2], feat_i[:, 0], X,
                                       kin_R, kin_v, ground, law == LAW_SOFT_ELLIPTIC, body_weight, warm, a)
     return STATUS_OK, stop - 1
