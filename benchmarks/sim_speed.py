@@ -128,7 +128,7 @@ def main() -> None:
              "cylinders touching the ground only, default integrator, linearised servos, command table.", "",
              "| path | us / step | ratio to MuJoCo | target ratio |", "|---|---:|---:|---:|"]
     target = lambda r: "" if r["target_ratio"] is None else f"<= {r['target_ratio']:g}"  # noqa: E731
-    lines += [f"| {r['path']} | {r['us_per_step']:.1f} | {r['ratio_to_mujoco']:.2f} | {target(r)} |" for r in rows]
+    lines += [f"| {r['path']} | {r['us_per_step']:.1f} | {r['ratio_to_mujoco']:.3f} | {target(r)} |" for r in rows]
     lines += [f"| MuJoCo mj_step (ground contacts only) | {1e6 * mj:.1f} | 1 | |",
               f"| MuJoCo mj_step with self-collision among the cylinders | {1e6 * mj_self:.1f} | "
               f"{mj_self / mj:.2f} | |", "",
