@@ -624,6 +624,7 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
     """
     X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
     integ, prev_err, duty, current = servo[0], servo[1], servo[2], servo[3]
+    parents, vidx, f_body = chain_i[:, 0], chain_i[:, 2], feat_i[:, 0]  # the soft laws' columns
     # the arrays' addresses for Pinocchio, taken once (the loop updates the arrays in place)
     qp, vp, taup, ap, minvp = q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes
     floating = plan[P_FLOATING] != 0
@@ -636,8 +637,8 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
             ABA(aba_model, aba_data, qp, vp, taup, ap)
         else:
             ABA_MINVERSE(aba_model, aba_data, qp, vp, taup, ap, minvp)
-            soft_contact_acceleration(v, minv, floating, chain_i[:, 0], chain_i[:, 2], feat_i[:, 0], X,
-                                      kin_R, kin_v, ground, law == LAW_SOFT_ELLIPTIC, body_weight, warm, a)
+            soft_contact_acceleration(v, minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground,
+                                      law == LAW_SOFT_ELLIPTIC, body_weight, warm, a)
     return STATUS_OK, stop - 1
 
 
