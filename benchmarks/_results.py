@@ -43,7 +43,8 @@ def environment_markdown(env: dict[str, Any]) -> str:
             f"Python {m['python']}; {versions}.")
 
 
-def write_results(name: str, rows: list[dict], meta: dict, markdown: str) -> tuple[Path, Path]:
+def write_results(name: str, rows: list[dict], meta: dict, markdown: str,
+                  env: dict[str, Any] | None = None) -> tuple[Path, Path]:
     """Write ``results/<name>.json`` (meta + environment + rows) and ``results/<name>.md``.
 
     Args:
@@ -51,12 +52,15 @@ def write_results(name: str, rows: list[dict], meta: dict, markdown: str) -> tup
         rows: one JSON-serialisable dict per table row.
         meta: what was run (seeds, configurations, settings); the environment is added.
         markdown: the table and its notes; the environment paragraph is appended.
+        env: the environment the rows were measured in, when they come from an earlier run's
+            file (a summary recomputed from measured rows keeps their machine and date);
+            default: this run's (:func:`environment`).
 
     Returns:
         The paths of the JSON and Markdown files.
     """
     RESULTS_DIR.mkdir(parents=True, exist_ok=True)
-    env = environment()
+    env = env or environment()
     json_path = RESULTS_DIR / f"{name}.json"
     md_path = RESULTS_DIR / f"{name}.md"
     json_path.write_text(json.dumps({"benchmark": name, "meta": meta, "environment": env, "rows": rows},

@@ -27,8 +27,10 @@ Ray tasks on a local Ray started here or on the cluster at ``--ray-address``
 (``--executor ray``). Writes ``benchmarks/results/diagnose_matrix.{json,md}`` and a heatmap per
 engine (``diagnose_matrix_<engine>.png``): the confusion matrix, the false-positive rate on the
 nulls, the median held-out gap shrink when the right effect is named (the held-out cost the
-workflow judges by, head and joints, and the final head error alone), and the wall time per
-diagnosis.
+workflow judges by, head and joints; the final head error alone; and the final head error and
+joint RMSE over the cases whose gap before lay above the floor the engine's nulls show, the
+largest gap a fitted model leaves when nothing is missing), and the wall time per diagnosis.
+``--summary-only`` recomputes these from the rows of an earlier run's file.
 
 Pairs: every two effects an engine expresses, hidden together at their realistic magnitudes (one
 dataset each, seeds cycled), are diagnosed for two effects; a pair counts when both are named,
@@ -53,12 +55,13 @@ Usage: ``python benchmarks/diagnose_matrix.py [--engines sim,mujoco] [--effects 
 [--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--no-pairs]
 [--mujoco-contact-law compliant|soft_constraint|soft_elliptic|choose] [--choose-among LAW,LAW]
 [--mujoco-contact twin|stiff|...]
-[--current] [--executor local|ray] [--resume]``.
+[--current] [--executor local|ray] [--resume | --summary-only]``.
 """
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import datetime as _dt
 import functools
 import itertools
 import json
@@ -279,6 +282,14 @@ def summary(rows: list[dict[str, Any]], engine: str) -> dict[str, Any]:
     nulls = [r for r in mine if r["effect"] is None]
     right = [r for r in hidden if r["named"] == r["effect"]]
     confusion = Counter((r["effect"] or "none", r["named"] or "none") for r in mine)
+    # a held-out gap at the floor a fitted model leaves when nothing is missing (the largest of
+    # the engine's nulls) is noise and contact chaos, not the effect: it cannot shrink by naming one
+    head_floor = max((r["head_final_after_m"] for r in nulls), default=0.0)
+    joint_floor = max((r["joint_rmse_after_rad"] for r in nulls), default=0.0)
+    head_above = [1.0 - r["head_final_after_m"] / r["head_final_before_m"] for r in right
+                  if r["head_final_before_m"] > head_floor]
+    joint_above = [1.0 - r["joint_rmse_after_rad"] / r["joint_rmse_before_rad"] for r in right
+                   if r["joint_rmse_before_rad"] > joint_floor]
     return {"engine": engine, "diagnoses": len(mine),
             "named_first_rate": len(right) / len(hidden) if hidden else float("nan"),
             "pairs": len(pairs),
@@ -287,6 +298,10 @@ def summary(rows: list[dict[str, Any]], engine: str) -> dict[str, Any]:
             "median_gap_shrink_when_right": float(np.median([r["gap_shrink"] for r in right])) if right else float("nan"),
             "median_cost_reduction_when_right": (float(np.median([r["held_out_cost_reduction"] for r in right]))
                                                  if right else float("nan")),
+            "head_floor_m": head_floor, "joint_floor_rad": joint_floor,
+            "right_head_above_floor": len(head_above), "right_joints_above_floor": len(joint_above),
+            "median_head_shrink_above_floor": float(np.median(head_above)) if head_above else float("nan"),
+            "median_joint_shrink_above_floor": float(np.median(joint_above)) if joint_above else float("nan"),
             "median_wall_s": float(np.median([r["wall_s"] for r in mine])) if mine else float("nan"),
             "median_wall_s_pairs": float(np.median([r["wall_s"] for r in pairs])) if pairs else float("nan"),
             "confusion": {f"{t} -> {n}": c for (t, n), c in sorted(confusion.items())}}
@@ -314,9 +329,10 @@ def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], m
              + (" Every run logs the motor currents (Present Current: 20 mA noise, 2.69 mA resolution), which "
                 "the diagnosis fits as a third channel." if current else ""), "",
              "| engine | diagnoses | named first (right) | false positives on nulls | median held-out cost "
-             "reduction when right | median held-out head gap shrink when right | median wall per diagnosis [s] | "
-             "pairs: both named | median wall per pair [s] |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "reduction when right | median held-out head gap shrink when right | ... of gaps above the nulls' "
+             "floor (cases) | median joint RMSE shrink when right, above the nulls' floor (cases) | "
+             "median wall per diagnosis [s] | pairs: both named | median wall per pair [s] |",
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for engine in engines:
         s = summary(rows, engine)
         both, wall_pairs = ((f"{round(s['pairs_both_named_rate'] * s['pairs'])}/{s['pairs']}",
@@ -324,7 +340,15 @@ def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], m
         lines.append(f"| {engine} | {s['diagnoses']} | {100 * s['named_first_rate']:.0f} % | "
                      f"{100 * s['false_positive_rate']:.0f} % | {100 * s['median_cost_reduction_when_right']:.0f} % | "
                      f"{100 * s['median_gap_shrink_when_right']:.0f} % | "
+                     f"{100 * s['median_head_shrink_above_floor']:.0f} % ({s['right_head_above_floor']}; floor "
+                     f"{1000 * s['head_floor_m']:.1f} mm) | "
+                     f"{100 * s['median_joint_shrink_above_floor']:.0f} % ({s['right_joints_above_floor']}; floor "
+                     f"{1000 * s['joint_floor_rad']:.2f} mrad) | "
                      f"{s['median_wall_s']:.0f} | {both} | {wall_pairs} |")
+    lines += ["", "The nulls' floor: the largest held-out final head error (joint RMSE) a fitted model leaves on "
+              "the engine's nulls, where nothing is missing (sensor noise, and on another engine its ground's "
+              "unexplained part). A gap at that floor before an effect is named is not the effect's and cannot "
+              "shrink by naming it; the shrink of the gaps above it is shown beside the shrink of all."]
     if any(r["level"] == "pair" for r in rows):
         lines += ["", "Pairs: each of the two effects at its realistic magnitude, named in the order found."]
     lines += ["", "| engine | hidden effect | level | magnitude | seed | named | structural | held-out final "
@@ -373,6 +397,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="keep the rows of this run's results file (benchmarks/results/diagnose_matrix[_<law>]"
                              "[_<configuration>].json) that are jobs of this run and diagnose only the others "
                              "(after an interrupted run)")
+    parser.add_argument("--summary-only", action="store_true",
+                        help="diagnose nothing: recompute the summary, tables and heatmaps from this run's results "
+                             "file, which must hold every job's row (the file keeps its rows' machine and date)")
     args = parser.parse_args(argv)
     engines = [e for e in args.engines.split(",") if e]
     effects = [e for e in args.effects.split(",") if e]
@@ -396,9 +423,34 @@ def main(argv: list[str] | None = None) -> int:
                     + (["current"] if args.current else []))
     jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration, args.pairs, law, contact, args.current,
                     among)
-    done = finished_rows(RESULTS_DIR / f"{name}.json", args.duration) if args.resume else {}
+    results = RESULTS_DIR / f"{name}.json"
+    done = finished_rows(results, args.duration) if args.resume or args.summary_only else {}
     done = {k: r for k, r in done.items() if k in {job_key(j) for j in jobs}}
     todo = [j for j in jobs if job_key(j) not in done]
+
+    def meta_of(rows: list[dict[str, Any]]) -> dict[str, Any]:
+        return {"engines": engines, "effects": effects, "magnitudes": levels, "seeds": seeds,
+                "dev_seeds": list(DEV_SEEDS), "nulls": args.nulls, "pairs": args.pairs, "duration_s": args.duration,
+                "mujoco_contact_law": law, "mujoco_contact_laws": list(among) if law == "choose" else [law],
+                "mujoco_contact": contact, "motor_currents": args.current,
+                "executor": args.executor,
+                "summary": [summary(rows, e) for e in engines]}
+
+    if args.summary_only:
+        if todo:
+            raise SystemExit(f"{results}: {len(todo)} of this run's {len(jobs)} jobs have no row (first: "
+                             f"{job_key(todo[0])}); --summary-only diagnoses nothing (run with --resume)")
+        rows = [done[job_key(j)] for j in jobs]
+        measured = json.loads(results.read_text())
+        now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        meta = {**measured["meta"], **meta_of(rows), "summarised_utc": now}
+        table = markdown(rows, engines, seeds, law, contact, args.current, among)
+        write_results(name, rows, meta, table + f"\n\nSummary recomputed {now} from these rows (nothing rediagnosed).",
+                      env=measured["environment"])
+        for engine in engines:
+            heatmap(rows, engine, RESULTS_DIR / f"{name}_{engine}.png")
+        print(markdown(rows, engines, seeds, law, contact, args.current, among))
+        return 0
     executor = make_executor(args.executor, workers=1, ray_address=args.ray_address)
     print(f"{len(todo)} diagnoses on {args.executor} ({executor.workers} worker(s))"
           + (f"; {len(done)} kept from the results file" if done else ""), file=sys.stderr, flush=True)
@@ -412,13 +464,7 @@ def main(argv: list[str] | None = None) -> int:
         r = done[job_key(todo[min(k + batch, len(todo)) - 1])]
         print(f"[{len(rows)}/{len(jobs)} {time.perf_counter() - t0:.0f} s] {r['engine']} {r['effect'] or 'null'} "
               f"seed {r['seed']}: named {r['named'] or 'none'}", file=sys.stderr, flush=True)
-        meta = {"engines": engines, "effects": effects, "magnitudes": levels, "seeds": seeds,
-                "dev_seeds": list(DEV_SEEDS), "nulls": args.nulls, "pairs": args.pairs, "duration_s": args.duration,
-                "mujoco_contact_law": law, "mujoco_contact_laws": list(among) if law == "choose" else [law],
-                "mujoco_contact": contact, "motor_currents": args.current,
-                "executor": args.executor,
-                "summary": [summary(rows, e) for e in engines]}
-        write_results(name, rows, meta, markdown(rows, engines, seeds, law, contact, args.current, among))
+        write_results(name, rows, meta_of(rows), markdown(rows, engines, seeds, law, contact, args.current, among))
     executor.close()
     for engine in engines:
         heatmap(rows, engine, RESULTS_DIR / f"{name}_{engine}.png")

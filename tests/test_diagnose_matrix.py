@@ -21,9 +21,14 @@ from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.gap.plots import plot_confusion  # noqa: E402
 
 
-def _row(engine: str, effect: str | None, named: str | None, shrink: float = 0.9, wall: float = 40.0) -> dict:
+def _row(engine: str, effect: str | None, named: str | None, shrink: float = 0.9, wall: float = 40.0,
+         head_before: float = 0.02, joints_before: float = 0.004) -> dict:
+    """A results row; the held-out head and joint gaps shrink by ``shrink`` when an effect is named."""
+    kept = 1.0 - shrink if named else 1.0
     return {"engine": engine, "effect": effect, "named": named, "gap_shrink": shrink, "wall_s": wall,
-            "level": "realistic" if effect else "null", "held_out_cost_reduction": 0.5 + shrink / 2 if named else 0.0}
+            "level": "realistic" if effect else "null", "held_out_cost_reduction": 0.5 + shrink / 2 if named else 0.0,
+            "head_final_before_m": head_before, "head_final_after_m": head_before * kept,
+            "joint_rmse_before_rad": joints_before, "joint_rmse_after_rad": joints_before * kept}
 
 
 def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_express() -> None:
@@ -136,6 +141,52 @@ def test_summary_counts_right_names_false_positives_and_medians() -> None:
     assert s["median_wall_s"] == pytest.approx(40)
     assert s["confusion"] == {"actuator_delay -> actuator_delay": 1, "backlash -> actuator_delay": 1,
                               "backlash -> backlash": 1, "none -> backlash": 1, "none -> none": 1}
+
+
+def test_the_gaps_shrink_is_taken_over_the_cases_above_the_floor_the_nulls_leave() -> None:
+    # nulls leave the head 3 mm and the joints 0.5 mrad off: a right name whose gap was at that
+    # floor (2 mm, 0.4 mrad) cannot shrink and is left out of the shrink above the floor
+    rows = [_row("sim", None, None, head_before=0.003, joints_before=0.0005),
+            _row("sim", None, None, head_before=0.001, joints_before=0.0002),
+            _row("sim", "backlash", "backlash", 0.9, head_before=0.05, joints_before=0.01),
+            _row("sim", "backlash", "backlash", 0.8, head_before=0.04, joints_before=0.008),
+            {**_row("sim", "actuator_delay", "actuator_delay", -2.0, head_before=0.002, joints_before=0.0004),
+             "joint_rmse_after_rad": 0.0004}]  # its head grew from 2 to 6 mm
+    s = summary(rows, "sim")
+    assert s["head_floor_m"] == pytest.approx(0.003) and s["joint_floor_rad"] == pytest.approx(0.0005)
+    assert s["right_head_above_floor"] == 2 and s["right_joints_above_floor"] == 2
+    assert s["median_head_shrink_above_floor"] == pytest.approx(0.85)
+    assert s["median_joint_shrink_above_floor"] == pytest.approx(0.85)
+    assert s["median_gap_shrink_when_right"] == pytest.approx(0.8)  # all right names, the floor's too
+
+
+def test_summary_only_recomputes_from_the_files_rows_keeping_their_date_and_diagnoses_nothing(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import benchmarks._results as results
+    import benchmarks.diagnose_matrix as matrix
+    monkeypatch.setattr(results, "RESULTS_DIR", tmp_path)
+    monkeypatch.setattr(matrix, "RESULTS_DIR", tmp_path)
+    monkeypatch.setattr(matrix, "run_job", lambda job: pytest.fail("--summary-only diagnosed a job"))
+    argv = ["--engines", "sim", "--effects", "backlash", "--magnitudes", "realistic", "--seeds", "31",
+            "--nulls", "1", "--no-pairs", "--summary-only"]
+    jobs = jobs_for(["sim"], ["backlash"], ["realistic"], [31], 1, 3.0)
+    extra = {"named_all": [], "structural": [], "contact_law": "compliant", "law_fitted": "compliant", "laws": [],
+             "mujoco_contact": None, "current": False, "named_values": {}, "all_named": False}
+    rows = [{**_row("sim", j.effect, j.effect, head_before=0.05 if j.effect else 0.001), **extra,
+             "level": j.level, "magnitude": j.magnitude, "seed": j.seed} for j in jobs]
+    env = {"date_utc": "2026-01-02T03:04:05+00:00", "machine": {"platform": "p", "processor": "x", "cpu_count": 2,
+                                                                  "python": "3"}, "versions": {"numpy": "1"}}
+    path = tmp_path / "diagnose_matrix.json"
+    path.write_text(json.dumps({"meta": {"duration_s": 3.0}, "environment": env, "rows": rows[:1]}))
+    with pytest.raises(SystemExit, match="1 of this run's 2 jobs have no row"):
+        matrix.main(argv)
+    path.write_text(json.dumps({"meta": {"duration_s": 3.0}, "environment": env, "rows": rows}))
+    assert matrix.main(argv) == 0
+    doc = json.loads(path.read_text())
+    assert doc["environment"] == env and doc["rows"] == rows and "summarised_utc" in doc["meta"]
+    s = doc["meta"]["summary"][0]
+    assert s["head_floor_m"] == pytest.approx(0.001) and s["median_head_shrink_above_floor"] == pytest.approx(0.9)
+    assert "Measured 2026-01-02T03:04:05+00:00" in (tmp_path / "diagnose_matrix.md").read_text()
 
 
 def test_the_heatmap_is_written_and_checks_its_shape(tmp_path: Path) -> None:
