@@ -118,3 +118,36 @@ def test_the_profiles_stretch_cut_from_the_screenings_is_the_stretch_cut_from_th
     from_screen, from_whole = _capped(screen, PROFILE_HORIZON_S), _capped(whole, PROFILE_HORIZON_S)
     assert from_screen.longest_run_s == from_whole.longest_run_s <= PROFILE_HORIZON_S
     assert np.array_equal(from_screen.residuals(X), from_whole.residuals(X))
+
+
+def test_the_refit_with_a_named_effect_also_starts_from_the_current_models_ground_and_keeps_the_lower_cost(
+        monkeypatch: pytest.MonkeyPatch) -> None:
+    """A candidate whose refit moved the ground's stiffness and shape is refitted from there and
+    from the current model's ground (the basin its fit chose); the lower training cost wins.
+    A candidate that left the ground where it was gets one refit."""
+    import sysid.discrepancy.diagnose as diagnose
+    from types import SimpleNamespace
+    soft = ModelParameters.nominal().with_contact_law("soft_constraint").with_frozen(
+        free=["joint_damping", "contact_time_constant", "contact_rounding"])
+    current = soft.with_values(contact_time_constant=0.0022, contact_rounding=0.045)
+    with_delay = LIBRARY.transform(current, {"actuator_delay": 0.04})
+    starts = []
+
+    def fit(objective, **_):  # a stand-in fit: its cost is the start's distance from the stiff basin
+        p = objective.params
+        starts.append(p)
+        return SimpleNamespace(params=p, cost=abs(p.value("contact_time_constant") - 0.0024))
+        yield  # a computation (sysid.identification.lockstep)
+
+    monkeypatch.setattr(diagnose, "fit_lsq_steps", fit)
+    monkeypatch.setattr(diagnose, "Objective", lambda runs, params, weights: SimpleNamespace(params=params))
+    drifted = with_delay.with_values(contact_time_constant=0.009, contact_rounding=0.005)
+    kept = diagnose.final_refit(drifted, current, [], None, diagnose.DiagnoseConfig())
+    assert [(s.value("contact_time_constant"), s.value("contact_rounding")) for s in starts] == [
+        (0.009, 0.005), (0.0022, 0.045)]
+    assert all(s.value("actuator_delay") == 0.04 for s in starts)  # the effect's value is the candidate's in both
+    assert kept.params.value("contact_time_constant") == 0.0022
+    starts.clear()
+    same_ground = with_delay.with_values(joint_damping=0.2)
+    assert diagnose.final_refit(same_ground, current, [], None, diagnose.DiagnoseConfig()).params is same_ground
+    assert len(starts) == 1

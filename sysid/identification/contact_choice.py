@@ -102,6 +102,11 @@ WHOLE_RUN_FITS = len(ROUNDING_STARTS_M)
 SCREEN_HORIZON_S = DEFAULT_HORIZONS_S[0]
 
 
+#: The ground parameters whose cost has a basin per value range, so that a fit starts from
+#: several of their values (:func:`fit_starts`): the ends' shape and the ground's stiffness.
+BASIN_PARAMETERS: tuple[str, ...] = ("contact_rounding", "contact_time_constant")
+
+
 def stiffness_starts(params: ModelParameters) -> tuple[float, ...]:
     """The ``contact_time_constant`` values [s] a fit of ``params`` starts from: its own value (the
     nominal 20 ms: a soft ground) and the law's stiffest (the parameter's lower bound) when it is
