@@ -300,6 +300,9 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   "thirty-fourth stop"): wall times only.
 #: - Objectives simulate each run for whole record periods, no period more, and the diagnosis
 #:   answers repeated rollouts from a memo (CHANGELOG "thirty-fifth stop"): wall times only.
+#: - The refit with a named effect also starts from the current model's ground when the
+#:   candidate's refit moved its shape or stiffness (``sysid.discrepancy.diagnose.final_refit``;
+#:   CHANGELOG "thirty-ninth stop"): gaps after naming, and what later rounds name.
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -336,6 +339,12 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # a diagnosis (results bit for bit the same; wall times shorter)
     ("2026-11-28T15:23", "8d9ac57", "wall times of runs simulated for whole record periods",
      ("fit_speed", "diagnose_accuracy")),
+    # the refit with a named effect also from the current model's ground (shape, stiffness) when
+    # the candidate's refit moved it: the gap after naming, and later rounds, may move
+    ("2026-11-29T03:10", "6abee05", "the refit after naming from the current model's ground too",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
 )
 
 
