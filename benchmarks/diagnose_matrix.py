@@ -437,35 +437,36 @@ def main(argv: list[str] | None = None) -> int:
                 "summary": [summary(rows, e) for e in engines]}
 
     if args.summary_only:
+        if not results.exists():
+            raise SystemExit(f"{results}: no such results file; --summary-only recomputes an earlier run's file "
+                             "(run without it to diagnose)")
         if todo:
             raise SystemExit(f"{results}: {len(todo)} of this run's {len(jobs)} jobs have no row (first: "
                              f"{job_key(todo[0])}); --summary-only diagnoses nothing (run with --resume)")
         rows = [done[job_key(j)] for j in jobs]
         measured = json.loads(results.read_text())
         now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-        meta = {**measured["meta"], **meta_of(rows), "summarised_utc": now}
-        table = markdown(rows, engines, seeds, law, contact, args.current, among)
-        write_results(name, rows, meta, table + f"\n\nSummary recomputed {now} from these rows (nothing rediagnosed).",
+        write_results(name, rows, {**measured["meta"], **meta_of(rows), "summarised_utc": now},
+                      markdown(rows, engines, seeds, law, contact, args.current, among)
+                      + f"\n\nSummary recomputed {now} from these rows (nothing rediagnosed).",
                       env=measured["environment"])
-        for engine in engines:
-            heatmap(rows, engine, RESULTS_DIR / f"{name}_{engine}.png")
-        print(markdown(rows, engines, seeds, law, contact, args.current, among))
-        return 0
-    executor = make_executor(args.executor, workers=1, ray_address=args.ray_address)
-    print(f"{len(todo)} diagnoses on {args.executor} ({executor.workers} worker(s))"
-          + (f"; {len(done)} kept from the results file" if done else ""), file=sys.stderr, flush=True)
-    t0 = time.perf_counter()
-    batch = max(1, executor.workers)
-    rows: list[dict[str, Any]] = [done[job_key(j)] for j in jobs if job_key(j) in done]
-    for k in range(0, len(todo), batch):
-        for r in executor.map(run_job, todo[k:k + batch]):
-            done[job_key(r)] = r
+    else:
+        executor = make_executor(args.executor, workers=1, ray_address=args.ray_address)
+        print(f"{len(todo)} diagnoses on {args.executor} ({executor.workers} worker(s))"
+              + (f"; {len(done)} kept from the results file" if done else ""), file=sys.stderr, flush=True)
+        t0 = time.perf_counter()
+        batch = max(1, executor.workers)
         rows = [done[job_key(j)] for j in jobs if job_key(j) in done]
-        r = done[job_key(todo[min(k + batch, len(todo)) - 1])]
-        print(f"[{len(rows)}/{len(jobs)} {time.perf_counter() - t0:.0f} s] {r['engine']} {r['effect'] or 'null'} "
-              f"seed {r['seed']}: named {r['named'] or 'none'}", file=sys.stderr, flush=True)
-        write_results(name, rows, meta_of(rows), markdown(rows, engines, seeds, law, contact, args.current, among))
-    executor.close()
+        for k in range(0, len(todo), batch):
+            for r in executor.map(run_job, todo[k:k + batch]):
+                done[job_key(r)] = r
+            rows = [done[job_key(j)] for j in jobs if job_key(j) in done]
+            r = done[job_key(todo[min(k + batch, len(todo)) - 1])]
+            print(f"[{len(rows)}/{len(jobs)} {time.perf_counter() - t0:.0f} s] {r['engine']} {r['effect'] or 'null'} "
+                  f"seed {r['seed']}: named {r['named'] or 'none'}", file=sys.stderr, flush=True)
+            write_results(name, rows, meta_of(rows),
+                          markdown(rows, engines, seeds, law, contact, args.current, among))
+        executor.close()
     for engine in engines:
         heatmap(rows, engine, RESULTS_DIR / f"{name}_{engine}.png")
     print(markdown(rows, engines, seeds, law, contact, args.current, among))
