@@ -170,6 +170,8 @@ def _mujoco_fit(doc: dict) -> list[tuple[str, str, str]]:
 def _fit_speed(doc: dict) -> list[tuple[str, str, str]]:
     lsq, *ppo = doc["rows"]
     runs = "; ".join(f"{100 * r['held_out_summed_m']:.1f} cm ({r['ratio_to_lsq']:.2f} x) in {r['wall_s']:.0f} s"
+                     + (f", within 10 % after {r['within_10pct_after_s']:.0f} s"
+                        if r["within_10pct_after_s"] is not None else ", not within 10 %")
                      for r in ppo)
     return [("reference dataset, summed held-out final head error after the fit: least squares; PPO "
              f"(seeds {', '.join(map(str, doc['meta']['ppo_seeds']))})",
