@@ -120,34 +120,49 @@ def test_the_profiles_stretch_cut_from_the_screenings_is_the_stretch_cut_from_th
     assert np.array_equal(from_screen.residuals(X), from_whole.residuals(X))
 
 
-def test_the_refit_with_a_named_effect_also_starts_from_the_current_models_ground_and_keeps_the_lower_cost(
+def test_the_refit_with_a_named_effect_also_starts_from_the_current_models_ground_and_the_grid(
         monkeypatch: pytest.MonkeyPatch) -> None:
-    """A candidate whose refit moved the ground's stiffness and shape is refitted from there and
-    from the current model's ground (the basin its fit chose); the lower training cost wins.
-    A candidate that left the ground where it was gets one refit."""
+    """A candidate whose refit moved the ground's stiffness and shape is refitted from there, from
+    the current model's ground (the basin its fit chose) and from the base fit's grid of grounds
+    around the candidate (one whole-run fit, its best screened start); the lowest training cost
+    wins. A candidate that left the ground where it was gets its own refit and the grid's."""
     import sysid.discrepancy.diagnose as diagnose
     from types import SimpleNamespace
     soft = ModelParameters.nominal().with_contact_law("soft_constraint").with_frozen(
         free=["joint_damping", "contact_time_constant", "contact_rounding"])
-    current = soft.with_values(contact_time_constant=0.0022, contact_rounding=0.045)
+    current = soft.with_values(contact_time_constant=0.009, contact_rounding=0.005)
     with_delay = LIBRARY.transform(current, {"actuator_delay": 0.04})
-    starts = []
+    starts, grids = [], []
 
-    def fit(objective, **_):  # a stand-in fit: its cost is the start's distance from the stiff basin
-        p = objective.params
-        starts.append(p)
-        return SimpleNamespace(params=p, cost=abs(p.value("contact_time_constant") - 0.0024))
+    def distance(p):  # a stand-in fit's cost: the start's distance from the stiff basin
+        return abs(p.value("contact_time_constant") - 0.0021)
+
+    def fit(objective, **_):
+        starts.append(objective.params)
+        return SimpleNamespace(params=objective.params, cost=distance(objective.params))
         yield  # a computation (sysid.identification.lockstep)
 
+    def grid(objective, fit, whole_run_fits):  # the grid's best start: the stiffest ground
+        grids.append((objective.params, whole_run_fits))
+        best = objective.params.with_values(contact_time_constant=0.002, contact_rounding=0.045)
+        return SimpleNamespace(best=SimpleNamespace(params=best, cost=distance(best)))
+
     monkeypatch.setattr(diagnose, "fit_lsq_steps", fit)
+    monkeypatch.setattr(diagnose, "fit_from_shapes", grid)
     monkeypatch.setattr(diagnose, "Objective", lambda runs, params, weights: SimpleNamespace(params=params))
-    drifted = with_delay.with_values(contact_time_constant=0.009, contact_rounding=0.005)
+    drifted = with_delay.with_values(contact_time_constant=0.02, contact_rounding=0.03)
     kept = diagnose.final_refit(drifted, current, [], None, diagnose.DiagnoseConfig())
     assert [(s.value("contact_time_constant"), s.value("contact_rounding")) for s in starts] == [
-        (0.009, 0.005), (0.0022, 0.045)]
-    assert all(s.value("actuator_delay") == 0.04 for s in starts)  # the effect's value is the candidate's in both
-    assert kept.params.value("contact_time_constant") == 0.0022
-    starts.clear()
+        (0.02, 0.03), (0.009, 0.005)]
+    assert [(p is drifted, n) for p, n in grids] == [(True, 1)]   # the grid around the candidate, one whole-run fit
+    assert all(s.value("actuator_delay") == 0.04 for s in starts)  # the effect's value is the candidate's in all
+    assert kept.params.value("contact_time_constant") == 0.002 and kept.params.value("actuator_delay") == 0.04
+    starts.clear(), grids.clear()
     same_ground = with_delay.with_values(joint_damping=0.2)
-    assert diagnose.final_refit(same_ground, current, [], None, diagnose.DiagnoseConfig()).params is same_ground
-    assert len(starts) == 1
+    assert diagnose.final_refit(same_ground, current, [], None, diagnose.DiagnoseConfig()).params.value(
+        "contact_time_constant") == 0.002
+    assert len(starts) == 1 and len(grids) == 1
+    starts.clear(), grids.clear()
+    ground_frozen = same_ground.with_frozen(frozen=["contact_time_constant", "contact_rounding"])
+    assert diagnose.final_refit(ground_frozen, current, [], None, diagnose.DiagnoseConfig()).params is ground_frozen
+    assert len(starts) == 1 and not grids                          # nothing to search: the default diagnosis
