@@ -305,6 +305,8 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #: - The refit with a named effect also starts from the current model's ground when the
 #:   candidate's refit moved its shape or stiffness (``sysid.discrepancy.diagnose.final_refit``;
 #:   CHANGELOG "thirty-ninth stop"): gaps after naming, and what later rounds name.
+#: - ... and from the base fit's grid of grounds around the candidate when the ground's shape or
+#:   stiffness is free (MuJoCo's diagnoses; CHANGELOG "fortieth stop"): the same.
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -346,6 +348,12 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-29T03:10", "6abee05", "the refit after naming from the current model's ground too",
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+    # ... and from the base fit's grid of grounds when their shape or stiffness is free (every
+    # diagnosis of MuJoCo's runs; this simulator's rows, whose ground is frozen, are unchanged)
+    ("2026-11-29T07:44", "713ddd2", "the refit after naming from the base fit's grid of grounds too (MuJoCo's rows)",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "mujoco_robustness", "mujoco_robustness_current",
       "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
 )
 
