@@ -157,12 +157,14 @@ def test_the_refit_with_a_named_effect_also_starts_from_the_current_models_groun
     assert [(p is drifted, n) for p, n in grids] == [(True, 1)]   # the grid around the candidate, one whole-run fit
     assert all(s.value("actuator_delay") == 0.04 for s in starts)  # the effect's value is the candidate's in all
     assert kept.params.value("contact_time_constant") == 0.002 and kept.params.value("actuator_delay") == 0.04
-    starts.clear(), grids.clear()
+    starts.clear()
+    grids.clear()
     same_ground = with_delay.with_values(joint_damping=0.2)
     assert diagnose.final_refit(same_ground, current, [], None, diagnose.DiagnoseConfig()).params.value(
         "contact_time_constant") == 0.002
     assert len(starts) == 1 and len(grids) == 1
-    starts.clear(), grids.clear()
+    starts.clear()
+    grids.clear()
     ground_frozen = same_ground.with_frozen(frozen=["contact_time_constant", "contact_rounding"])
     assert diagnose.final_refit(ground_frozen, current, [], None, diagnose.DiagnoseConfig()).params is ground_frozen
     assert len(starts) == 1 and not grids                          # nothing to search: the default diagnosis
