@@ -153,6 +153,8 @@ class _Servo:
         self.silent = False
         #: Emulated time [s] of the last instruction packet this servo received.
         self.last_heard_s = 0.0
+        #: Wall-clock time [s] (``time.perf_counter``) of that packet; None: nothing heard yet.
+        self.last_heard_wall_s: float | None = None
         #: Profile generator state in servo angle [rad] and [rad/s].
         self.traj_rad = 0.0
         self.traj_vel = 0.0
@@ -197,11 +199,20 @@ class _Servo:
         """The Bus Watchdog has stopped this servo (register -1)."""
         return self.table.get(ct.BUS_WATCHDOG) == ct.BUS_WATCHDOG_TRIPPED
 
-    def watchdog_due(self, now_s: float) -> bool:
-        """Torque on, the watchdog armed, and nothing heard for longer than it allows."""
+    def watchdog_due(self, now_s: float, now_wall_s: float) -> bool:
+        """Torque on, the watchdog armed, and nothing heard for longer than it allows, both in
+        emulated time (``now_s``) and on the wall clock (``now_wall_s``, ``time.perf_counter``).
+
+        Why both: after the emulator's own process was starved, it catches the plant up in fast
+        steps with the packets that queued meanwhile all read at once before them, so emulated
+        time runs ahead of every packet still to come; a real servo counts the host's silence in
+        real time, and a host that kept sending is not silent (seen under a loaded test run: a
+        trip with every cycle of the host on time)."""
         setting = self.table.get(ct.BUS_WATCHDOG)
+        allowed = setting * ct.BUS_WATCHDOG_UNIT_S
+        wall_silent = self.last_heard_wall_s is None or now_wall_s - self.last_heard_wall_s > allowed
         return (self.table.torque_enabled and setting > 0
-                and now_s - self.last_heard_s > setting * ct.BUS_WATCHDOG_UNIT_S)
+                and now_s - self.last_heard_s > allowed and wall_silent)
 
     def stop_by_watchdog(self) -> None:
         """Hold where it is and refuse goals (Bus Watchdog Error)."""
@@ -427,7 +438,7 @@ class BusEmulator:
                 ct.POSITION_P_GAIN, ct.POSITION_I_GAIN, ct.POSITION_D_GAIN, ct.PWM_LIMIT)))
             self._gains_dirty = False
         for s in self._servos:
-            if s.watchdog_due(self._emulated_s):
+            if s.watchdog_due(self._emulated_s, time.perf_counter()):
                 s.stop_by_watchdog()
                 self._stats.watchdog_stops_s[s.joint.servo_id] = self._since_motion_s()
         enabled = np.array([s.table.torque_enabled for s in self._servos])
@@ -539,7 +550,7 @@ class BusEmulator:
             addressed = self._servos if packet.servo_id == BROADCAST_ID else [self._by_id.get(packet.servo_id)]
             for s in addressed:
                 if s is not None and not s.silent:
-                    s.last_heard_s = self._emulated_s
+                    s.last_heard_s, s.last_heard_wall_s = self._emulated_s, time.perf_counter()
         if packet.servo_id == BROADCAST_ID:
             if not packet.crc_ok:
                 self._stats.crc_errors += 1

@@ -221,6 +221,39 @@ def test_the_bus_watchdog_stops_a_servo_that_hears_nothing(sdk, emulator: Emulat
     assert emulator.stats().watchdog_stops_s.keys() == {3}
 
 
+def test_a_stall_of_the_emulator_itself_is_not_the_hosts_silence() -> None:
+    # The emulator's thread stalls 250 ms (its lock held) while the host keeps sending a goal
+    # every 40 ms (within the 100 ms watchdog): the queued packets are read at once, then the plant catches up in fast steps
+    # of emulated time. A servo counts the host's silence in real time, so nothing trips; when
+    # the host then falls silent, it does.
+    import threading
+
+    with BusEmulator(KinematicPlant()) as emu:
+        port = PortHandler(emu.port)
+        assert port.openPort()
+        packet = PacketHandler(2.0)
+        assert packet.write1ByteTxRx(port, 3, ct.BUS_WATCHDOG.address, 5)[0] == COMM_SUCCESS  # 100 ms
+        assert packet.write1ByteTxRx(port, 3, ct.TORQUE_ENABLE.address, 1)[0] == COMM_SUCCESS
+
+        def stall() -> None:
+            with emu._lock:
+                time.sleep(0.25)
+
+        staller = threading.Thread(target=stall)
+        staller.start()
+        end = time.monotonic() + 0.5
+        while time.monotonic() < end:
+            packet.write4ByteTxOnly(port, 3, ct.GOAL_POSITION.address, 2100)
+            time.sleep(0.04)
+        staller.join()
+        stats = emu.stats()
+        assert stats.wall_time_s - stats.emulated_time_s > 0.1  # the stall happened: emulated time slipped
+        assert stats.watchdog_stops_s == {}
+        time.sleep(0.3)  # now the host is silent
+        assert emu.stats().watchdog_stops_s.keys() == {3}
+        port.closePort()
+
+
 def test_port_link_is_a_symlink_and_never_replaces_a_file(tmp_path: Path, emulator: EmulatorProcess) -> None:
     link = tmp_path / "cobra-bus"
     link.symlink_to("/nonexistent/old-pty")
