@@ -223,9 +223,9 @@ def test_the_bus_watchdog_stops_a_servo_that_hears_nothing(sdk, emulator: Emulat
 
 def test_a_stall_of_the_emulator_itself_is_not_the_hosts_silence() -> None:
     # The emulator's thread stalls 250 ms (its lock held) while the host keeps sending a goal
-    # every 40 ms (within the 100 ms watchdog): the queued packets are read at once, then the plant catches up in fast steps
-    # of emulated time. A servo counts the host's silence in real time, so nothing trips; when
-    # the host then falls silent, it does.
+    # every 40 ms (within the 100 ms watchdog): the queued packets are read at once, then the
+    # plant catches up in fast steps of emulated time. A servo counts the host's silence in
+    # real time, so nothing trips; when the host then falls silent, it does.
     import threading
 
     with BusEmulator(KinematicPlant()) as emu:
