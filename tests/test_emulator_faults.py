@@ -129,7 +129,11 @@ def test_corrupted_and_dropped_replies_are_retried(tmp_path: Path, emulators, sp
 
 def test_servo_that_stops_answering(tmp_path: Path, emulators) -> None:
     emulators.append(emu := start([Fault(FaultKind.SILENT, at_s=0.5, servo_id=5)]))
-    result = record(emu, tmp_path / "silent.csv", duration_s=3.0)
+    # A 1 s watchdog: from the silence on, every read waits out the SDK's timeout (~36 ms) and
+    # the packets go that far apart; a loaded test host once stalled the recorder the rest of
+    # the 100 ms and the watchdog, rightly, stopped the run before the 5th failed read.
+    result = record(emu, tmp_path / "silent.csv", duration_s=3.0,
+                    config=BusConfig(port=emu.port, bus_watchdog_ms=1000))
     assert result.status is StopReason.COMM_FAILURE
     assert "5 consecutive failed reads" in result.message
     assert "not answering a ping: joint 5 (ID 5)" in result.message
