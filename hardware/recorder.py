@@ -253,6 +253,15 @@ class _Session:
     def __init__(self, bus: DynamixelBus, config: BusConfig) -> None:
         self.bus = bus
         self.config = config
+        #: ``time.perf_counter()`` of the last packet cycle's start (torque on before the first)
+        #: and the longest interval between two since torque on [s], over settling and recording:
+        #: what a Bus Watchdog stop is compared with (a stream's own timing misses the others').
+        self.last_cycle_start: float | None = None
+        self.longest_interval_s = 0.0
+
+    def torque_went_on(self) -> None:
+        """Start counting the intervals the Bus Watchdog sees (it is armed with the torque)."""
+        self.last_cycle_start = time.perf_counter()
 
     def stream(self, duration_s: float, command: Callable[[float], np.ndarray],
                on_sample: Callable[[float, np.ndarray, JointState, float], None], timing: _Timing) -> None:
@@ -274,6 +283,9 @@ class _Session:
             t = start - t0
             if t >= duration_s:
                 return
+            if self.last_cycle_start is not None:
+                self.longest_interval_s = max(self.longest_interval_s, start - self.last_cycle_start)
+            self.last_cycle_start = start
             q_cmd = self.bus.send_goal(command(t))
             state = self.bus.read_state()
             timing.starts.append(start)
@@ -300,7 +312,7 @@ class _Session:
                     raise _Stop(StopReason.WATCHDOG, (
                         f"the Bus Watchdog stopped {', '.join(self.bus.name(i) for i in stopped)}: no packet "
                         f"reached it for {self.config.bus_watchdog_ms} ms (longest interval between cycles "
-                        f"so far {1e3 * max(np.diff(timing.starts), default=0.0):.0f} ms); raise [bus] "
+                        f"since torque on {1e3 * self.longest_interval_s:.0f} ms); raise [bus] "
                         f"bus_watchdog_ms if the host is that slow"))
             current_slot = int((time.perf_counter() - t0) / period)
             # Slots that passed while this cycle ran are skipped (those within the duration
@@ -428,6 +440,7 @@ def _run_session(bus: DynamixelBus, session: _Session, config: BusConfig, gait: 
     """Connect, torque on, settle and record (every stop is an exception; see :func:`record_gait`)."""
     bus.connect()
     held = bus.torque_on()
+    session.torque_went_on()
     say(f"connected to {len(config.joints)} servos on {config.port}; torque on")
     if settle_s > 0:
         q_first = bus.clamp(gait.q_ref(0.0))
