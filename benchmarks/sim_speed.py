@@ -13,7 +13,9 @@ linearised from the same Dynamixel loop, reading a precomputed command table. Ou
 - ``simulate_like`` of a 10 s run (what ``cobra compare`` runs);
 - ``Simulator.rollout`` with the ``q_ref`` callable under the soft-constraint laws, MuJoCo's
   contact on the friction pyramid and on the elliptic cone (what ``cobra simulate --contact``
-  and ``cobra compare`` run with a parameter file fitted under those laws);
+  and ``cobra compare`` run with a parameter file fitted under those laws); the elliptic law is
+  also set against MuJoCo on its elliptic cone (``cone="elliptic"``), the same contact
+  problem (MuJoCo's default is the pyramid);
 - the batched rollout of the objective (``BatchSimulator``), per environment-step;
 - the momentum-form step (``SimSettings(scheme="momentum")``, bounded energy error), on the
   core's path, for what it costs (no target: it is not the fits' step).
@@ -65,9 +67,12 @@ def interleaved_best(runs: dict[str, Callable[[], object]]) -> dict[str, float]:
     return {name: t / (DURATION / DT) for name, t in best.items()}
 
 
-def mujoco_run(model: CobraModel, table: np.ndarray, self_collision: bool = False) -> Callable[[], None]:
-    """10 s of MuJoCo stepping the command table, from the same start, as a callable."""
-    mj = mujoco_twin.build(model.urdf_path, mujoco_twin.TwinOptions(timestep=DT, self_collision=self_collision))
+def mujoco_run(model: CobraModel, table: np.ndarray, self_collision: bool = False,
+               cone: str = "pyramidal") -> Callable[[], None]:
+    """10 s of MuJoCo stepping the command table, from the same start, as a callable (friction
+    ``cone``: MuJoCo's default pyramid, or the elliptic cone)."""
+    mj = mujoco_twin.build(model.urdf_path,
+                           mujoco_twin.TwinOptions(timestep=DT, self_collision=self_collision, cone=cone))
     n = int(DURATION / DT)
 
     def run() -> None:
@@ -117,28 +122,38 @@ def main() -> None:
          lambda: momentum.rollout(st, table, DURATION, record_every=10), None),
     ]
     runs = {"mujoco": mujoco_run(model, table), "mujoco_self": mujoco_run(model, table, self_collision=True),
+            "mujoco_elliptic": mujoco_run(model, table, cone="elliptic"),
             **{name: run for name, run, _ in paths}}
     best = interleaved_best(runs)
-    mj, mj_self = best["mujoco"], best["mujoco_self"]
+    mj, mj_self, mj_elliptic = best["mujoco"], best["mujoco_self"], best["mujoco_elliptic"]
     rows = [{"path": name, "us_per_step": 1e6 * best[name], "ratio_to_mujoco": best[name] / mj, "target_ratio": target}
             for name, _, target in paths]
+    for r in rows:
+        if "soft_elliptic" in r["path"]:  # the same contact problem in MuJoCo: its elliptic cone
+            r["ratio_to_mujoco_elliptic"] = 1e-6 * r["us_per_step"] / mj_elliptic
     batch = [{"environments": n, "us_per_env_step": 1e6 * time_batch(model, table, n)} for n in (16, 64, 256)]
     lines = [f"10 s of 0.5 Hz sidewinding at dt = {DT * 1e3:g} ms, best of {REPEATS} rounds (each path once per "
              "round, in turn, MuJoCo's among them); MuJoCo: same URDF, "
              "cylinders touching the ground only, default integrator, linearised servos, command table.", "",
              "| path | us / step | ratio to MuJoCo | target ratio |", "|---|---:|---:|---:|"]
     target = lambda r: "" if r["target_ratio"] is None else f"<= {r['target_ratio']:g}"  # noqa: E731
-    lines += [f"| {r['path']} | {r['us_per_step']:.1f} | {r['ratio_to_mujoco']:.3f} | {target(r)} |" for r in rows]
+    same_cone = lambda r: (f" ({r['ratio_to_mujoco_elliptic']:.3f} to MuJoCo's elliptic cone)"  # noqa: E731
+                           if "ratio_to_mujoco_elliptic" in r else "")
+    lines += [f"| {r['path']} | {r['us_per_step']:.1f} | {r['ratio_to_mujoco']:.3f}{same_cone(r)} | {target(r)} |"
+              for r in rows]
     lines += [f"| MuJoCo mj_step (ground contacts only) | {1e6 * mj:.1f} | 1 | |",
               f"| MuJoCo mj_step with self-collision among the cylinders | {1e6 * mj_self:.1f} | "
-              f"{mj_self / mj:.2f} | |", "",
+              f"{mj_self / mj:.2f} | |",
+              f"| MuJoCo mj_step on the elliptic friction cone (ground contacts only) | {1e6 * mj_elliptic:.1f} | "
+              f"{mj_elliptic / mj:.2f} | |", "",
               "| batched rollout (BatchSimulator, 2 threads) | us / env-step | target |", "|---|---:|---:|"]
     lines += [f"| {b['environments']} environments | {b['us_per_env_step']:.2f} | "
               f"{'<= 2' if b['environments'] == 256 else ''} |" for b in batch]
     text = "\n".join(lines)
     write_results("sim_speed", rows + batch, {"duration_s": DURATION, "dt_s": DT, "repeats": REPEATS,
                                               "mujoco_us_per_step": 1e6 * mj,
-                                              "mujoco_self_collision_us_per_step": 1e6 * mj_self}, text)
+                                              "mujoco_self_collision_us_per_step": 1e6 * mj_self,
+                                              "mujoco_elliptic_us_per_step": 1e6 * mj_elliptic}, text)
     print(text)
 
 
