@@ -51,11 +51,19 @@ Motor currents (``--current``): every run also logs each servo's current as a Dy
 Present Current (20 mA of noise, 2.69 mA resolution; the same runs otherwise), and the diagnosis
 fits it as a third channel (``DiagnoseConfig.use_current``); results ``..._current.*``.
 
+One job by hand (``--write-runs DIR [--job EFFECT:LEVEL:SEED ...]``): diagnoses nothing and
+writes each selected job's three runs as run files (two training runs, one held out) into
+``DIR/<engine>_<effect>_<level>_<seed>/``, with the ``cobra diagnose`` command that diagnoses
+them as the matrix does (same free set, effects sought and contact law; no data check, as the
+matrix runs none), so that a row can be looked into with the project's own tools. ``EFFECT``
+is a library effect, ``a+b`` for a pair or ``null``; the other options select the jobs as for
+a whole run (``--engines``, ``--mujoco-contact``, ...).
+
 Usage: ``python benchmarks/diagnose_matrix.py [--engines sim,mujoco] [--effects ...]
 [--magnitudes realistic,near_limit] [--seeds 31,32,33] [--nulls 6] [--no-pairs]
 [--mujoco-contact-law compliant|soft_constraint|soft_elliptic|choose] [--choose-among LAW,LAW]
 [--mujoco-contact twin|stiff|...]
-[--current] [--executor local|ray] [--resume | --summary-only]``.
+[--current] [--executor local|ray] [--resume | --summary-only | --write-runs DIR [--job E:L:S ...]]``.
 """
 from __future__ import annotations
 
@@ -80,6 +88,7 @@ from benchmarks._args import number_list  # noqa: E402
 from cobra_cli.common import listed_laws  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from cobra_model.errors import InputError  # noqa: E402
+from cobra_model.run_files import write_run  # noqa: E402
 from cobra_model.parameters import CONTACT_LAWS  # noqa: E402
 from integrators.simulator import Simulator  # noqa: E402
 from sysid.generators.dataset import RunPlan, record  # noqa: E402
@@ -203,6 +212,31 @@ def run_job(job: Job) -> dict[str, Any]:
             if before.head_final_error_m else float("nan"),
             "held_out_cost_reduction": d.effects[0].held_out_cost_reduction if d.effects else 0.0,
             "wall_s": wall}
+
+
+def job_label(job: Job) -> str:
+    """``EFFECT:LEVEL:SEED`` of a job (``null`` for a null's effect), as ``--job`` names it."""
+    return f"{job.effect or 'null'}:{job.level}:{job.seed}"
+
+
+def write_job_runs(job: Job, out: Path) -> str:
+    """Write ``job``'s three runs into ``out`` (a new directory: ``train_0.csv``,
+    ``train_1.csv``, ``holdout.csv``, each with its sidecar) and return the ``cobra diagnose``
+    command that diagnoses them as :func:`run_job` does.
+
+    Raises:
+        FileExistsError: naming ``out`` if it exists (nothing is overwritten).
+    """
+    out.mkdir(parents=True, exist_ok=False)
+    runs = make_runs(job, CobraModel.load())
+    paths = [write_run(run, out / name) for run, name in zip(runs, ("train_0.csv", "train_1.csv", "holdout.csv"))]
+    free = FREE_SIM if job.engine == "sim" else FREE_MUJOCO
+    if job.contact_law == "choose":  # each law fits the free set it reads: the CLI's own choice
+        contact = f"--contact {','.join(job.laws)}"
+    else:
+        contact = f"--contact {job.contact_law} --free {','.join(nominal_start(job.contact_law, free).free_names)}"
+    return (f"cobra diagnose {paths[0]} {paths[1]} --holdout {paths[2]} {contact} "
+            f"--max-effects {max(1, len(job.hidden))} --no-check --out {out / 'diagnosis'}")
 
 
 def job_key(row_or_job: Any) -> tuple:
@@ -397,6 +431,12 @@ def main(argv: list[str] | None = None) -> int:
                         help="keep the rows of this run's results file (benchmarks/results/diagnose_matrix[_<law>]"
                              "[_<configuration>].json) that are jobs of this run and diagnose only the others "
                              "(after an interrupted run)")
+    parser.add_argument("--write-runs", type=Path, metavar="DIR",
+                        help="diagnose nothing: write the selected jobs' runs into DIR, one new directory each, "
+                             "with the `cobra diagnose` command that diagnoses them as the matrix does")
+    parser.add_argument("--job", action="append", default=[], metavar="EFFECT:LEVEL:SEED",
+                        help="with --write-runs: only this job (repeatable), e.g. "
+                             "torque_saturation+encoder_offset:pair:33 or null:null:31")
     parser.add_argument("--summary-only", action="store_true",
                         help="diagnose nothing: recompute the summary, tables and heatmaps from this run's results "
                              "file, which must hold every job's row (the file keeps its rows' machine and date)")
@@ -423,6 +463,20 @@ def main(argv: list[str] | None = None) -> int:
                     + (["current"] if args.current else []))
     jobs = jobs_for(engines, effects, levels, seeds, args.nulls, args.duration, args.pairs, law, contact, args.current,
                     among)
+    if args.job and args.write_runs is None:
+        parser.error("--job selects jobs for --write-runs")
+    if args.write_runs is not None:
+        labels = {job_label(j) for j in jobs}
+        unknown = [label for label in args.job if label not in labels]
+        if unknown:
+            parser.error(f"--job {', '.join(unknown)}: not a job of this run (EFFECT:LEVEL:SEED; for example "
+                         f"{', '.join(sorted(labels)[:3])})")
+        for job in (j for j in jobs if not args.job or job_label(j) in args.job):
+            folder = args.write_runs / f"{job.engine}_{job_label(job).replace(':', '_')}"
+            if folder.exists():
+                raise SystemExit(f"{folder}: exists; --write-runs writes each job into a new directory")
+            print(write_job_runs(job, folder))
+        return 0
     results = RESULTS_DIR / f"{name}.json"
     done = finished_rows(results, args.duration) if args.resume or args.summary_only else {}
     done = {k: r for k, r in done.items() if k in {job_key(j) for j in jobs}}

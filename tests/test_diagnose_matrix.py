@@ -209,3 +209,40 @@ def test_resume_keeps_the_rows_of_this_runs_jobs_and_refuses_other_durations(tmp
     path.write_text('{"meta": {"duration_s": 3.0}, "rows": [')
     with pytest.raises(SystemExit, match="diagnose_matrix.json: not a diagnose_matrix results file"):
         finished_rows(path, 3.0)
+
+
+def test_write_runs_writes_one_jobs_runs_and_the_cli_command_that_diagnoses_them_so(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    import shlex
+
+    import benchmarks.diagnose_matrix as matrix
+    from cobra_cli.main import build_parser
+    from cobra_model.run_files import read_run
+    from sysid.identification.contact_choice import nominal_start
+    monkeypatch.setattr(matrix, "RESULTS_DIR", tmp_path / "results")
+    monkeypatch.setattr(matrix, "run_job", lambda job: pytest.fail("--write-runs diagnosed a job"))
+    argv = ["--engines", "mujoco", "--effects", "encoder_offset", "--magnitudes", "realistic", "--seeds", "31",
+            "--nulls", "0", "--mujoco-contact-law", "soft_constraint", "--duration", "0.5",
+            "--write-runs", str(tmp_path / "runs"), "--job", "encoder_offset:realistic:31"]
+    assert matrix.main(argv) == 0
+    command = capsys.readouterr().out.strip().splitlines()
+    assert len(command) == 1 and command[0].startswith("cobra diagnose ")
+    args = build_parser().parse_args(shlex.split(command[0])[1:])
+    job = Job("mujoco", "encoder_offset", EffectLibrary()["encoder_offset"].realistic, "realistic", 31, 0.5,
+              contact_law="soft_constraint", mujoco_contact="twin")
+    assert args.contact == "soft_constraint" and args.max_effects == 1 and args.no_check
+    assert args.free.split(",") == list(nominal_start("soft_constraint", matrix.FREE_MUJOCO).free_names)
+    folder = tmp_path / "runs" / "mujoco_encoder_offset_realistic_31"
+    written = [read_run(p) for p in (*args.runs, *args.holdout)]
+    assert [Path(p).parent for p in (*args.runs, *args.holdout)] == [folder] * 3
+    for run, made in zip(written, make_runs(job, CobraModel.load())):  # the job's own runs, seed for seed
+        np.testing.assert_array_equal(run.q, made.q)
+        np.testing.assert_array_equal(run.t, made.t)
+    assert not (tmp_path / "results").exists()
+    before = (folder / "train_0.csv").read_bytes()
+    with pytest.raises(SystemExit, match="exists"):
+        matrix.main(argv)
+    assert (folder / "train_0.csv").read_bytes() == before
+    with pytest.raises(SystemExit):
+        matrix.main(argv[:-1] + ["encoder_offset:near_limit:31"])
+    assert "not a job of this run" in capsys.readouterr().err
