@@ -4,8 +4,11 @@
 survive a crash, a Ctrl-C or a pulled cable with every sample received so far on disk. This
 writer therefore:
 
-* writes the header at creation and each sample as one complete line, flushed at once, with
-  ``os.fsync`` at most every ``fsync_interval_s`` (and at close);
+* writes the header at creation and each sample as one complete line, flushed at once; a
+  thread of its own calls ``os.fsync`` every ``fsync_interval_s`` when lines were written (and
+  :meth:`IncrementalRunWriter.close` once more), so that the caller, a control loop, never
+  waits for the device (an SD card's fsync can take hundreds of milliseconds, longer than the
+  servos' Bus Watchdog);
 * writes the JSON sidecar at creation with a note ``"partial run: recording did not finish
   ..."``, so a file left by a killed process still reads as a (partial) run, and replaces it
   atomically at :meth:`IncrementalRunWriter.close` with the final metadata and notes;
@@ -27,7 +30,7 @@ from __future__ import annotations
 import errno
 import json
 import os
-import time
+import threading
 from pathlib import Path
 from typing import Any, BinaryIO, Mapping, Sequence
 
@@ -108,8 +111,6 @@ class IncrementalRunWriter:
         self.sidecar_updated = False
         #: Why the sidecar could not be replaced, or None.
         self.sidecar_error: str | None = None
-        self._fsync_interval_s = fsync_interval_s
-        self._last_sync = 0.0
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._write_sidecar({**self.meta, "notes": [*self.meta.get("notes", []), UNFINISHED_NOTE]})
         # unbuffered: a line is one write, so nothing half-written waits in a buffer
@@ -117,6 +118,12 @@ class IncrementalRunWriter:
         self._committed = 0  # bytes of complete lines on disk
         self._write_line(",".join(COLUMNS))
         self._sync()
+        self._written = threading.Event()  # lines written since the syncing thread's last fsync
+        self._closing = threading.Event()
+        self._sync_error: OSError | None = None
+        self._syncer = threading.Thread(target=self._sync_every, args=(fsync_interval_s,),
+                                        name=f"fsync {self.path.name}", daemon=True)
+        self._syncer.start()
 
     def _open(self, mode: str) -> BinaryIO:
         """The CSV file, unbuffered binary (a seam for tests that make the disk fail)."""
@@ -146,8 +153,12 @@ class IncrementalRunWriter:
         line is handed to the OS at once.
 
         Raises:
-            RunWriteError: the line could not be written (the file keeps the samples before it).
+            RunWriteError: the line could not be written (the file keeps the samples before it),
+                or the syncing thread's last fsync failed (a failing device).
         """
+        if self._sync_error is not None:
+            raise RunWriteError(f"cannot sync {self.path} to the device ({self._sync_error.strerror or self._sync_error}); "
+                                f"{self.rows} samples written, the last ones possibly not on disk")
         for name, arr in (("q_ref", q_ref), ("q", q), ("dq", dq), ("current", current)):
             if np.shape(arr) != (NUM_JOINTS,):
                 raise ValueError(f"{name}: expected shape ({NUM_JOINTS},), got {np.shape(arr)}")
@@ -155,8 +166,7 @@ class IncrementalRunWriter:
                 + _EMPTY_MOCAP + "," + repr(float(read_latency_s)))
         self._write_line(line)
         self.rows += 1
-        if time.monotonic() - self._last_sync >= self._fsync_interval_s:
-            self._sync()
+        self._written.set()
 
     def count_rows(self) -> int:
         """Sync the file and count the samples on disk (``rows``): a signal between writing a
@@ -181,6 +191,8 @@ class IncrementalRunWriter:
         """
         if self._fh.closed:
             return
+        self._closing.set()
+        self._syncer.join()
         self.count_rows()
         self._fh.close()
         self.meta.update(meta or {})
@@ -196,7 +208,18 @@ class IncrementalRunWriter:
 
     def _sync(self) -> None:
         os.fsync(self._fh.fileno())
-        self._last_sync = time.monotonic()
+
+    def _sync_every(self, interval_s: float) -> None:
+        """The syncing thread: fsync the CSV every ``interval_s`` [s] while lines come, until
+        :meth:`close`; a failed fsync ends it and is raised by the next :meth:`append`."""
+        while not self._closing.wait(interval_s):
+            if self._written.is_set():
+                self._written.clear()
+                try:
+                    self._sync()
+                except OSError as exc:
+                    self._sync_error = exc
+                    return
 
     def _write_sidecar(self, meta: Mapping[str, Any]) -> None:
         """Write the sidecar atomically (temporary file, fsync, rename)."""

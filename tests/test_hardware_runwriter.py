@@ -109,3 +109,67 @@ def test_a_full_disk_keeps_every_complete_sample_and_the_old_sidecar(tmp_path: P
     run = read_run(tmp_path / "full.csv")  # no half line: still a valid run
     assert run.n_samples == 3 == writer.rows
     assert run.meta["notes"] == [UNFINISHED_NOTE]
+
+
+def test_the_callers_thread_never_waits_for_a_slow_fsync(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A control loop appends; the device's fsync runs on the writer's own thread, so that a slow
+    device (an SD card) cannot stretch the loop past the servos' Bus Watchdog."""
+    import os
+    import threading
+    import time
+
+    import hardware.runwriter as runwriter
+    real_fsync = os.fsync
+    callers: list[threading.Thread] = []
+    release = threading.Event()
+
+    def slow_fsync(fd: int) -> None:
+        callers.append(threading.current_thread())
+        if threading.current_thread() is not threading.main_thread():
+            release.wait(10.0)  # a device that takes its time
+        real_fsync(fd)
+
+    writer = IncrementalRunWriter(tmp_path / "slow.csv", {"source": "test"}, fsync_interval_s=0.01)
+    monkeypatch.setattr(runwriter.os, "fsync", slow_fsync)
+    zeros = np.zeros(11)
+    for k in range(5):
+        writer.append(0.02 * k, zeros, np.full(11, k), zeros, zeros, 0.002)
+        time.sleep(0.03)
+    deadline = time.monotonic() + 5.0
+    while not callers and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert callers and all(c is not threading.main_thread() for c in callers)  # blocked in the writer's thread
+    release.set()
+    writer.close()
+    assert threading.main_thread() in callers  # close syncs the file and the sidecar itself
+    run = read_run(tmp_path / "slow.csv")
+    assert run.n_samples == 5 == writer.rows
+    np.testing.assert_array_equal(run.q[:, 0], np.arange(5))
+
+
+def test_a_failed_fsync_stops_the_next_append(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import errno
+    import os
+    import threading
+    import time
+
+    import hardware.runwriter as runwriter
+    real_fsync = os.fsync
+
+    def failing_fsync(fd: int) -> None:
+        if threading.current_thread() is not threading.main_thread():
+            raise OSError(errno.EIO, "Input/output error")
+        real_fsync(fd)
+
+    writer = IncrementalRunWriter(tmp_path / "eio.csv", {"source": "test"}, fsync_interval_s=0.01)
+    monkeypatch.setattr(runwriter.os, "fsync", failing_fsync)
+    zeros = np.zeros(11)
+    writer.append(0.0, zeros, zeros, zeros, zeros, 0.002)
+    deadline = time.monotonic() + 5.0
+    while writer._sync_error is None and time.monotonic() < deadline:
+        time.sleep(0.01)
+    with pytest.raises(RunWriteError, match=r"cannot sync .*eio\.csv to the device \(Input/output error\); "
+                                            r"1 samples written"):
+        writer.append(0.02, zeros, zeros, zeros, zeros, 0.002)
+    writer.close(notes=["partial run: write failed"])
+    assert read_run(tmp_path / "eio.csv").n_samples == 1
