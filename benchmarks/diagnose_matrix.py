@@ -180,15 +180,26 @@ def near_limit(effect: str, duration_s: float) -> float:
     return round(onset + NEAR_LIMIT_FRACTION * (spec.realistic - onset), 2)
 
 
+def job_starts(job: Job) -> dict[str, ModelParameters]:
+    """The diagnosis's start per contact law of ``job``: the nominal parameters with the engine's
+    free set, the law's own ground parameters free and those it does not read frozen (as
+    `cobra diagnose --contact`); with "choose" one per law chosen among."""
+    free = FREE_SIM if job.engine == "sim" else FREE_MUJOCO
+    return {law: nominal_start(law, free) for law in (job.laws if job.contact_law == "choose" else (job.contact_law,))}
+
+
+def job_config(job: Job) -> DiagnoseConfig:
+    """The diagnosis's settings for ``job``: as many effects sought as it hides (one for a null)."""
+    return DiagnoseConfig(max_effects=max(1, len(job.hidden)))
+
+
 def run_job(job: Job) -> dict[str, Any]:
     """Diagnose one dataset; the row of the results."""
     model = CobraModel.load()
     runs = make_runs(job, model)
-    free = FREE_SIM if job.engine == "sim" else FREE_MUJOCO
-    # the law's own ground parameters free, those it does not read frozen (as `cobra diagnose --contact`);
     # "choose": the diagnosis run under each of the job's laws, the lowest final held-out cost kept
-    starts = {law: nominal_start(law, free) for law in (job.laws if job.contact_law == "choose" else (job.contact_law,))}
-    config = DiagnoseConfig(max_effects=max(1, len(job.hidden)))
+    starts = job_starts(job)
+    config = job_config(job)
     t0 = time.perf_counter()
     if job.contact_law == "choose":
         d = diagnose(runs[:2], runs[2:], law_starts=starts, config=config)
@@ -225,18 +236,17 @@ def write_job_runs(job: Job, out: Path) -> str:
     command that diagnoses them as :func:`run_job` does.
 
     Raises:
-        FileExistsError: naming ``out`` if it exists (nothing is overwritten).
+        FileExistsError: if ``out`` exists (nothing is overwritten).
     """
     out.mkdir(parents=True, exist_ok=False)
     runs = make_runs(job, CobraModel.load())
     paths = [write_run(run, out / name) for run, name in zip(runs, ("train_0.csv", "train_1.csv", "holdout.csv"))]
-    free = FREE_SIM if job.engine == "sim" else FREE_MUJOCO
     if job.contact_law == "choose":  # each law fits the free set it reads: the CLI's own choice
         contact = f"--contact {','.join(job.laws)}"
     else:
-        contact = f"--contact {job.contact_law} --free {','.join(nominal_start(job.contact_law, free).free_names)}"
+        contact = f"--contact {job.contact_law} --free {','.join(job_starts(job)[job.contact_law].free_names)}"
     return (f"cobra diagnose {paths[0]} {paths[1]} --holdout {paths[2]} {contact} "
-            f"--max-effects {max(1, len(job.hidden))} --no-check --out {out / 'diagnosis'}")
+            f"--max-effects {job_config(job).max_effects} --no-check --out {out / 'diagnosis'}")
 
 
 def job_key(row_or_job: Any) -> tuple:
@@ -465,6 +475,8 @@ def main(argv: list[str] | None = None) -> int:
                     among)
     if args.job and args.write_runs is None:
         parser.error("--job selects jobs for --write-runs")
+    if args.write_runs is not None and (args.resume or args.summary_only):
+        parser.error("--write-runs diagnoses nothing and writes no results: not with --resume or --summary-only")
     if args.write_runs is not None:
         labels = {job_label(j) for j in jobs}
         unknown = [label for label in args.job if label not in labels]
@@ -473,9 +485,13 @@ def main(argv: list[str] | None = None) -> int:
                          f"{', '.join(sorted(labels)[:3])})")
         for job in (j for j in jobs if not args.job or job_label(j) in args.job):
             folder = args.write_runs / f"{job.engine}_{job_label(job).replace(':', '_')}"
-            if folder.exists():
-                raise SystemExit(f"{folder}: exists; --write-runs writes each job into a new directory")
-            print(write_job_runs(job, folder))
+            try:
+                print(write_job_runs(job, folder))
+            except FileExistsError:
+                raise SystemExit(f"{folder}: exists; --write-runs writes each job into a new directory") from None
+            except OSError as exc:
+                raise SystemExit(f"--write-runs {args.write_runs}: cannot write {folder} "
+                                 f"({exc.strerror or exc})") from None
         return 0
     results = RESULTS_DIR / f"{name}.json"
     done = finished_rows(results, args.duration) if args.resume or args.summary_only else {}

@@ -246,3 +246,10 @@ def test_write_runs_writes_one_jobs_runs_and_the_cli_command_that_diagnoses_them
     with pytest.raises(SystemExit):
         matrix.main(argv[:-1] + ["encoder_offset:near_limit:31"])
     assert "not a job of this run" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        matrix.main(argv + ["--resume"])
+    assert "--write-runs diagnoses nothing and writes no results" in capsys.readouterr().err
+    (tmp_path / "file").write_text("")
+    with pytest.raises(SystemExit, match=r"--write-runs .*file: cannot write .*file/mujoco_encoder_offset_realistic_31 "
+                                         r"\(Not a directory\)"):
+        matrix.main(argv[:-3] + [str(tmp_path / "file"), "--job", "encoder_offset:realistic:31"])
