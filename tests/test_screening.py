@@ -7,8 +7,8 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.generators.dataset import RunPlan, record
-from sysid.discrepancy.diagnose import (PROFILE_HORIZON_S, SCREEN_HORIZON_S, _capped, _cost_steps, screening_start,
-                                        torque_demand, unbent)
+from sysid.discrepancy.diagnose import (PROFILE_HORIZON_S, SCREEN_HORIZON_S, _capped, _cost_steps, screening_bases,
+                                        screening_start, torque_demand, unbent)
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.identification.lockstep import run
 from sysid.identification.lsq import fit_lsq
@@ -45,6 +45,26 @@ def test_a_limit_the_fit_bent_the_motor_to_mimic_starts_from_the_unbent_motor():
     assert start.value("torque_limit") < 4.0
     assert set(start.free_names) == {*FREE, "torque_limit"}
     assert cost(runs, start) < 0.8 * cost(runs, bent)
+
+
+@pytest.mark.slow
+def test_a_limit_is_screened_from_the_bent_and_from_the_unbent_motor_apart():
+    """An effect that declares what a fit lacking it bends (the torque limit: the motor) gets a
+    start on each base, each refitted apart; "both" is the start of lower cost of the two."""
+    runs = measured(LIBRARY.transform(TRUTH, {"torque_saturation": 2.5}, frozen=True))
+    bent = fit_lsq(Objective(runs, NOMINAL), max_iterations=6).params
+    effect = LIBRARY["torque_saturation"]
+    assert screening_bases(effect) == ("current", "unbent")
+    assert screening_bases(LIBRARY["backlash"]) == ("both",)
+    on_bent = run(screening_start(effect, bent, NOMINAL, runs, LIBRARY, base="current"))
+    on_unbent = run(screening_start(effect, bent, NOMINAL, runs, LIBRARY, base="unbent"))
+    either = run(screening_start(effect, bent, NOMINAL, runs, LIBRARY))
+    assert on_bent.value("motor_km") == bent.value("motor_km")      # the fitted, weakened motor kept
+    assert on_unbent.value("motor_km") > bent.value("motor_km")     # put back, then one step
+    assert on_unbent.value("torque_limit") < 4.0
+    assert cost(runs, either) == min(cost(runs, on_bent), cost(runs, on_unbent))
+    with pytest.raises(ValueError, match="base 'sideways'"):
+        run(screening_start(effect, bent, NOMINAL, runs, LIBRARY, base="sideways"))
 
 
 @pytest.mark.slow
