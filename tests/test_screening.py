@@ -50,7 +50,9 @@ def test_a_limit_the_fit_bent_the_motor_to_mimic_starts_from_the_unbent_motor():
 @pytest.mark.slow
 def test_a_limit_is_screened_from_the_bent_and_from_the_unbent_motor_apart():
     """An effect that declares what a fit lacking it bends (the torque limit: the motor) gets a
-    start on each base, each refitted apart; "both" is the start of lower cost of the two."""
+    start on each base, each refitted apart; "both" is the start of lower cost of the two. A base
+    on which every limit raises the cost (an exact model of data without one) gives no start of
+    its own: its refit would be the baseline's."""
     runs = measured(LIBRARY.transform(TRUTH, {"torque_saturation": 2.5}, frozen=True))
     bent = fit_lsq(Objective(runs, NOMINAL), max_iterations=6).params
     effect = LIBRARY["torque_saturation"]
@@ -63,6 +65,8 @@ def test_a_limit_is_screened_from_the_bent_and_from_the_unbent_motor_apart():
     assert on_unbent.value("motor_km") > bent.value("motor_km")     # put back, then one step
     assert on_unbent.value("torque_limit") < 4.0
     assert cost(runs, either) == min(cost(runs, on_bent), cost(runs, on_unbent))
+    # no limit in the data and the model exact: every limit on it raises the cost, no start there
+    assert run(screening_start(effect, TRUTH, NOMINAL, measured(TRUTH), LIBRARY, base="current")) is None
     with pytest.raises(ValueError, match="base 'sideways'"):
         run(screening_start(effect, bent, NOMINAL, runs, LIBRARY, base="sideways"))
 

@@ -512,16 +512,22 @@ def screening_bases(effect: Effect) -> tuple[str, ...]:
     (3.1 N m) cost 634 after its step against the bent model's 234, so the refit started from
     the bent model at 3.5 N m and stayed there (held-out cost 218 against the baseline's 206);
     refitted from the unbent point it reached 2.47 N m, training cost 27 and held-out 31.
+
+    The bent base gives no start of its own when every value of its grid makes the fit worse
+    than the effect off (:func:`screening_start` returns None): a refit from there is a local
+    refit of the baseline (the refit without a new effect), which ends beside it and so can
+    never be the significant improvement over it that naming asks for (:func:`significant`).
     """
     return ("current", "unbent") if effect.bends else ("both",)
 
 
 def screening_start(effect: Effect, current: ModelParameters, before: ModelParameters, runs: Sequence[Run],
                     library: EffectLibrary, weights: Weights = Weights(), base: str = "both"
-                    ) -> Steps[ModelParameters]:
+                    ) -> Steps[ModelParameters | None]:
     """Where a candidate's screening refit starts: the effect added to one of two bases (a
     computation, :mod:`sysid.identification.lockstep`); ``base`` (:data:`BASES`): the start of
-    lower cost of both, or that base's own (:func:`screening_bases`).
+    lower cost of both, or that base's own (:func:`screening_bases`). With ``base="current"``,
+    None when that start would be the effect inactive (no start of its own on that base).
 
     - ``current``, the fitted model, with the effect inactive or at the grid value of lowest
       cost (inactive when every grid value makes the fit worse);
@@ -555,7 +561,7 @@ def screening_start(effect: Effect, current: ModelParameters, before: ModelParam
         k = int(np.argmin(costs))
         best, best_cost = trial.with_values(**{name: values[k]}), costs[k]
         if base == "current":
-            return best
+            return None if k == 0 else best
     coarse = start_grid(effect, demand_nm=demand(straight), coarse=True)
     unbent_trial = library.transform(straight, {effect.name: coarse[0]})
     screen = _capped(Objective(runs, unbent_trial, weights))
@@ -846,11 +852,13 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
         progress(f"round {round_ + 1}: refitting without a new effect, and with each of "
                  f"{', '.join(remaining)} (screened together)")
 
-        def candidate(name: str, base: str) -> Steps[Candidate]:
+        def candidate(name: str, base: str) -> Steps[Candidate | None]:
             effect = library[name]
             # the effect's parameter and the current free ones refit together: the current fit
             # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
             trial = yield from screening_start(effect, current, start, profile_set, library, weights, base)
+            if trial is None:  # no start of its own on this base (screening_bases)
+                return None
             # from the fitted model no horizon continuation is needed: it already is in the basin
             fit, hold1_runs = yield from _screen_refit(trial, fit_set, holdout, config.screen_iterations, weights)
             augmented = fit.params
@@ -873,7 +881,8 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
             + [candidate(name, base) for name, base in screens],
             finished=lambda i, round_=round_: progress(f"round {round_ + 1}: {labels[i]} done"))
         # of an effect screened from two bases, the refit of lower training cost
-        candidates = [min((c for c in screened if c.name == name), key=lambda c: c.train_cost) for name in remaining]
+        candidates = [min((c for c in screened if c is not None and c.name == name), key=lambda c: c.train_cost)
+                      for name in remaining]
         n = null.residual_count
         baseline = Baseline(2.0 * null.cost, hold_null).joined(Baseline(np.inf, hold_current))
 
