@@ -355,6 +355,12 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff", "mujoco_robustness", "mujoco_robustness_current",
       "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+    # a torque limit screened from the bent and from the unbent motor apart, each refitted (the
+    # lower training cost kept); the bent base skipped when its best grid value is the limit off
+    ("2026-11-29T15:33", "3334ddd", "the torque limit screened from the bent and the unbent motor apart",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
 )
 
 
