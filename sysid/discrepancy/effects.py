@@ -58,7 +58,9 @@ class Effect:
         bends: the parameter groups (``"actuator"``, ``"ground"``) that a fit of a model lacking
             the effect bends to mimic it; empty: any free parameter. The screening profiles the
             effect on the fitted model with just these put back to their values before the fit
-            (``sysid.discrepancy.diagnose.screening_start``).
+            (``sysid.discrepancy.diagnose.screening_start``); an effect that names groups is
+            refitted from the bent and from the unbent model apart, the lower training cost
+            kept (``sysid.discrepancy.diagnose.screening_bases``).
         acts_below_demand: the parameter is a limit on the joints' motor torque [N m], which
             changes nothing above the largest torque the model demands and acts sharply just
             below it; its screening starts are placed at fractions of that demand
