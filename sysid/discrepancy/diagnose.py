@@ -858,6 +858,8 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
             # has bent its parameters to mimic the missing effect, which a lone refit cannot undo
             trial = yield from screening_start(effect, current, start, profile_set, library, weights, base)
             if trial is None:  # no start of its own on this base (screening_bases)
+                progress(f"round {round_ + 1}: {name}: every value costs more than none on the current model; "
+                         f"refitted from the unbent model only")
                 return None
             # from the fitted model no horizon continuation is needed: it already is in the basin
             fit, hold1_runs = yield from _screen_refit(trial, fit_set, holdout, config.screen_iterations, weights)
