@@ -488,7 +488,8 @@ class Simulator:
         K.soft_contact_acceleration(v, pin.computeMinverse(model, data).copy(), self.model.chain.floating,
                                     self._chain_i[:, 0], self._chain_i[:, 2], self._feat_i[:, 0], self._X, self._kin_R,
                                     self._kin_v, self.ground, K.SOFT_LAWS[self.contact_law],
-                                    self.model.reference_weights, self._soft_warm, a)
+                                    self.model.reference_weights, self._soft_warm, a,
+                                    K.soft_scratch(len(self._feat_i), self.model.nv))
         return a
 
     def _momentum_step(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray,

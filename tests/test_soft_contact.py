@@ -67,6 +67,46 @@ def test_nonnegative_qp_solves_the_lcp_exactly():
         assert np.all(start >= 0) and np.all(w >= -1e-9) and abs(start @ w) < 1e-9
 
 
+def test_the_solvers_scratch_carries_nothing_from_one_step_to_the_next(cobra):
+    """The pyramid's solver and rows on a rollout's scratch arrays (made once, larger than a
+    step needs, left with the last step's numbers) answer bit for bit what they answer on arrays
+    of their own: no entry is read before it is written."""
+    rng = np.random.default_rng(5)
+    for trial in range(20):
+        m = int(rng.integers(1, 12))
+        B = rng.normal(size=(m, m))
+        M, r = B @ B.T + 0.05 * np.eye(m), rng.normal(size=m)
+        start = np.abs(rng.normal(size=m)) * (trial % 2)
+        own, on_scratch = start.copy(), start.copy()
+        it_own = K.nonnegative_qp(M, r, own)
+        big = m + 5
+        it_scratch = K.nonnegative_qp_into(M, r, on_scratch, rng.integers(0, 2, big).astype(bool),
+                                           rng.integers(-9, 9, big), np.full((big, big), np.nan),
+                                           np.full((big, big), np.nan), np.full(big, np.nan), np.full(big, np.nan),
+                                           np.full(big, np.nan))
+        assert it_scratch == it_own
+        np.testing.assert_array_equal(on_scratch, own)
+    sim = Simulator(cobra, soft(ModelParameters.nominal()))
+    q = sim.rest_state(rng.uniform(-0.5, 0.5, cobra.n_joints), heading_rad=0.3).q
+    q[2] -= 0.004
+    v = rng.normal(scale=0.3, size=cobra.nv)
+    n = cobra.n_joints
+    K.pre_step(True, q, v, np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n, dtype=np.bool_),
+               sim.act, sim.scal, sim.ground, True, sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i,
+               sim._feat_f, np.empty(cobra.nv), np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v)
+    args = (cobra.nv, True, sim._chain_i[:, 0], sim._chain_i[:, 2], sim._feat_i[:, 0], sim._X, sim._kin_R,
+            sim._kin_v, v, 0.3, 0.6)
+    for elliptic in (False, True):
+        own = K.soft_contact_rows(*args, elliptic)
+        nf = len(sim._feat_i)
+        on_scratch = K.soft_contact_rows_into(*args, elliptic, np.full(4 * nf * cobra.nv, np.nan),
+                                              np.full(4 * nf, np.nan), np.full(4 * nf, np.nan),
+                                              np.full((3, cobra.nv), np.nan))
+        assert own[0].shape[0] > 0
+        for a, b in zip(own, on_scratch):
+            np.testing.assert_array_equal(a, b)
+
+
 def test_cholesky_solves_the_contact_solvers_systems():
     """The contact solvers' own Cholesky against LAPACK on positive definite systems of their
     sizes (a few rows to a 17-coordinate mass matrix and beyond), conditioned as the pyramid's
