@@ -738,6 +738,23 @@ def spd_substitute(L, b, k, x):
         x[i] = s / L[i, i]
 
 
+@njit(cache=True, inline="always")
+def max_abs_into(largest: float, x: float) -> float:
+    """``max(largest, |x|)``, NaN once either is (as ``np.max`` propagates it)."""
+    y = abs(x)
+    return y if y > largest or y != y else largest
+
+
+@njit(cache=True, inline="always")
+def max_abs(x) -> float:
+    """``np.max(np.abs(x))`` of a non-empty vector without the temporary array: the solvers take
+    it at every iteration, where each temporary is an allocation."""
+    largest = 0.0
+    for i in range(x.shape[0]):
+        largest = max_abs_into(largest, x[i])
+    return largest
+
+
 @njit(cache=True)
 def nonnegative_qp(M, r, f):
     """The LCP ``f >= 0, w = M f - r >= 0, f . w = 0`` for a positive definite ``M`` (m, m): the
@@ -761,7 +778,7 @@ def nonnegative_qp_into(M, r, f, free, idx, sub, L, rs, zs, z):
     m = r.shape[0]
     for j in range(m):
         free[j] = f[j] > 0.0
-    scale = 1e-12 * (np.max(np.abs(r)) + 1e-300)
+    scale = 1e-12 * (max_abs(r) + 1e-300)
     for it in range(1, 3 * m + 10):
         # the best point with the bound rows at zero, approached as far as f stays >= 0
         while True:
@@ -834,14 +851,9 @@ def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, v, m
     differed from MuJoCo's at the same state by up to 8 N of 20 (the contact's share of the
     joint accelerations by up to 5 %).
     """
-    per = 3 if elliptic else 4
-    touching = 0
-    for k in range(X.shape[0]):
-        if X[k, 2] < 0.0:
-            touching += 1
-    m = per * touching
+    most = 4 * X.shape[0]             # rows if every point touched
     return soft_contact_rows_into(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, v, mu1, mu2, elliptic,
-                                  np.empty(m * nv), np.empty(m), np.empty(m), np.empty((3, nv)))
+                                  np.empty(most * nv), np.empty(most), np.empty(most), np.empty((3, nv)))
 
 
 @njit(cache=True, inline="always")
@@ -948,15 +960,20 @@ def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Hc):
         for j in range(nv):
             acc += M[i, j] * (a[j] - a0[j])
         cost += 0.5 * di * acc
-    p = np.empty(3)
     for c in range(m // 3):
+        p0, p1, p2 = 0.0, 0.0, 0.0
         for e in range(3):
             r = 3 * c + e
             w = -aref[r]
             for col in range(nv):
                 w += rows[r, col] * a[col]
-            p[e] = -w / sR[r]
-        g0, g1, g2 = cone_projection(p[0], p[1], p[2], slope, Hc[c])
+            if e == 0:
+                p0 = -w / sR[r]
+            elif e == 1:
+                p1 = -w / sR[r]
+            else:
+                p2 = -w / sR[r]
+        g0, g1, g2 = cone_projection(p0, p1, p2, slope, Hc[c])
         f[3 * c], f[3 * c + 1], f[3 * c + 2] = g0 / sR[3 * c], g1 / sR[3 * c + 1], g2 / sR[3 * c + 2]
         cost += 0.5 * (g0 * g0 + g1 * g1 + g2 * g2)
     return cost
@@ -1051,7 +1068,7 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, drift, weight, mu1, mu2
                 acc_f += rows[j, i] * f[j]
             grad[i] = acc_m - acc_f
             size = max(size, abs(acc_m), abs(acc_f))
-        if np.max(np.abs(grad)) <= 1e-10 * size:
+        if max_abs(grad) <= 1e-10 * size:
             break
         iterations = it
         H[:, :] = M
@@ -1088,12 +1105,14 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, drift, weight, mu1, mu2
             if ct <= cost + 1e-4 * alpha * slope or alpha < 1e-10:
                 break
             alpha *= 0.5
-        moved = np.max(np.abs(at - a))
+        moved = 0.0
+        for i in range(nv):
+            moved = max_abs_into(moved, at[i] - a[i])
         a[:] = at
         f[:] = ft
         Hc[:, :, :] = Ht
         cost = ct
-        if moved <= 1e-14 * (1.0 + np.max(np.abs(a))):
+        if moved <= 1e-14 * (1.0 + max_abs(a)):
             break
     a_out[:] = a
     return iterations
@@ -1116,7 +1135,7 @@ def _store_warm(X, f, per, warm):
 def soft_scratch(n_features: int, nv: int):
     """Scratch arrays of :func:`soft_contact_acceleration` for up to ``n_features`` touching
     points (four rows each): a rollout's loop makes them once, so that its steps allocate none
-    (each step allocated 17 arrays, about 0.9 us of the soft-constraint law's 9.2 us per step).
+    (each step allocated 17 arrays: 8.9 -> 8.5 us per step on the pyramid, the same arithmetic).
 
     Returns the tuple ``(rows, depth, drift, Jp, f, weight, W, A, rhs, free, idx, sub, L, rs, zs,
     z)`` that :func:`soft_contact_acceleration` unpacks."""
