@@ -1204,6 +1204,8 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
         a: (nv,) the acceleration without contact ``a0`` on entry (Pinocchio's ABA under the
             generalized force without contact), the acceleration with the contact forces on
             return.
+        scratch: :func:`soft_scratch` for at least ``X``'s features: the step's working arrays,
+            every entry written before it is read (nothing carries over from the last step).
 
     Returns:
         the solver's iterations (0 without contact).
