@@ -24,8 +24,9 @@ soft-constraint law's solver (``soft_contact_acceleration``) stays out of line: 
 the loop, its code made both laws slower. Within it, the small helpers that the elliptic
 cone's Newton iterations call several times a step (the Cholesky factor and solve, the cone's
 projection and the primal cost) are inlined: each call counted a reference on every array it
-took (25.3 -> 24.2 us per elliptic step; the pyramid's unchanged). Each step's arrays are views
-of scratch arrays that a rollout's loop makes once (:func:`soft_scratch`).
+took (25.3 -> 24.2 us per elliptic step; the pyramid's unchanged). The pyramid's working
+arrays are views of scratch arrays that a rollout's loop makes once (:func:`soft_scratch`); the
+elliptic cone's Newton solve still allocates its own (16 a step).
 
 Conventions (Pinocchio's): a floating root has ``q = [p (3), quat x y z w (4), joints]`` and
 ``v = [v_lin (3), omega (3), joint rates]`` with both root velocities expressed in the root's

@@ -84,7 +84,7 @@ def test_the_solvers_scratch_carries_nothing_from_one_step_to_the_next(cobra):
                                            rng.integers(-9, 9, big), np.full((big, big), np.nan),
                                            np.full((big, big), np.nan), np.full(big, np.nan), np.full(big, np.nan),
                                            np.full(big, np.nan))
-        assert it_scratch == it_own
+        assert it_scratch == it_own and np.all(np.isfinite(on_scratch))
         np.testing.assert_array_equal(on_scratch, own)
     sim = Simulator(cobra, soft(ModelParameters.nominal()))
     q = sim.rest_state(rng.uniform(-0.5, 0.5, cobra.n_joints), heading_rad=0.3).q
@@ -104,6 +104,7 @@ def test_the_solvers_scratch_carries_nothing_from_one_step_to_the_next(cobra):
                                               np.full((3, cobra.nv), np.nan))
         assert own[0].shape[0] > 0
         for a, b in zip(own, on_scratch):
+            assert np.all(np.isfinite(b))                      # no NaN of the scratch was read
             np.testing.assert_array_equal(a, b)
 
 
