@@ -20,13 +20,15 @@ Those were about 10 % of a single rollout's step (perf) and more of a batch's, w
 counted on the same read-only arrays (a cache line both cores then wrote at every step; each
 thread now reads copies of its own, :func:`batch_rollout_loop`). Inlined, numba's
 reference-count pruning removes most of the rest. The arithmetic is the same, bit for bit. The
-soft-constraint law's solver (``soft_contact_acceleration``) stays out of line: inlined into
-the loop, its code made both laws slower. Within it, the small helpers that the elliptic
+soft-constraint laws' solvers stay out of line: inlined into the loop, the pyramid's made both
+laws slower. Within the elliptic cone's, the small helpers that the elliptic
 cone's Newton iterations call several times a step (the Cholesky factor and solve, the cone's
 projection and the primal cost) are inlined: each call counted a reference on every array it
 took (25.3 -> 24.2 us per elliptic step; the pyramid's unchanged). The pyramid's working
-arrays are views of scratch arrays that a rollout's loop makes once (:func:`soft_scratch`); the
-elliptic cone's Newton solve still allocates its own (16 a step).
+arrays, and the elliptic cone's, are views of scratch arrays that a rollout's loop makes once
+(:func:`soft_scratch`, :func:`elliptic_scratch`), so that a step allocates none; each law has a
+solver of its own (:func:`soft_contact_acceleration`, :func:`soft_elliptic_acceleration`), so
+that the pyramid's call does not hand over the cone's arrays.
 
 Conventions (Pinocchio's): a floating root has ``q = [p (3), quat x y z w (4), joints]`` and
 ``v = [v_lin (3), omega (3), joint rates]`` with both root velocities expressed in the root's
@@ -634,6 +636,8 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
     qp, vp, taup, ap, minvp = q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes
     floating = plan[P_FLOATING] != 0
     scratch = soft_scratch(0 if law == LAW_COMPLIANT else feat_i.shape[0], v.shape[0])
+    elliptic = law == LAW_SOFT_ELLIPTIC
+    cone_scratch = elliptic_scratch(feat_i.shape[0] if elliptic else 0, v.shape[0] if elliptic else 0)
     for i in range(start, stop):
         status = _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, act, scal, ground, chain_i,
                        chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
@@ -643,8 +647,12 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
             ABA(aba_model, aba_data, qp, vp, taup, ap)
         else:
             ABA_MINVERSE(aba_model, aba_data, qp, vp, taup, ap, minvp)
-            soft_contact_acceleration(v, minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground,
-                                      law == LAW_SOFT_ELLIPTIC, body_weight, warm, a, scratch)
+            if elliptic:
+                soft_elliptic_acceleration(v, minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground,
+                                           body_weight, warm, a, scratch, cone_scratch)
+            else:
+                soft_contact_acceleration(v, minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground,
+                                          body_weight, warm, a, scratch)
     return STATUS_OK, stop - 1
 
 
@@ -1022,20 +1030,54 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, drift, weight, mu1, mu2
         the Newton iterations.
     """
     m, nv = rows.shape
-    L = np.empty((nv, nv))
-    M = np.empty((nv, nv))            # the mass matrix, D's inverse, row by row (symmetric)
-    unit = np.zeros(nv)
+    return elliptic_contact_acceleration_into(D, a0, v, rows, depth, drift, weight, mu1, mu2, tc, f, a_out,
+                                              np.empty(m * nv), elliptic_scratch(m // 3, nv))
+
+
+@njit(cache=True)
+def elliptic_scratch(n_contacts: int, nv: int):
+    """Scratch arrays of :func:`elliptic_contact_acceleration_into` for up to ``n_contacts``
+    touching points and ``nv`` velocities: a rollout's loop makes them once, so that its steps
+    allocate none of them (each step allocated 16).
+
+    Returns the tuple ``(mats, vecs, per_row, cones, per_contact_rows)``: ``mats`` (3, nv, nv)
+    the Cholesky factor, the mass matrix and the Newton matrix; ``vecs`` (5, nv) a unit vector,
+    the acceleration, the gradient, the Newton step and the line search's trial acceleration;
+    ``per_row`` (3, 3 n) the rows' ``sqrt(R)``, reference accelerations and trial forces;
+    ``cones`` (2, n, 3, 3) each contact's projection Jacobian at the current and the trial
+    acceleration; ``per_contact_rows`` (2, 3, nv) one contact's scaled rows and their product
+    with its Jacobian."""
+    return (np.empty((3, nv, nv)), np.empty((5, nv)), np.empty((3, 3 * n_contacts)),
+            np.empty((2, n_contacts, 3, 3)), np.empty((2, 3, nv)))
+
+
+@njit(cache=True)
+def elliptic_contact_acceleration_into(D, a0, v, rows, depth, drift, weight, mu1, mu2, tc, f, a_out, W_buf,
+                                       scratch):
+    """:func:`elliptic_contact_acceleration` on scratch arrays: ``W_buf`` (at least ``m nv``,
+    ``m`` the rows) for ``rows D^-1`` and ``scratch`` from :func:`elliptic_scratch` for at least
+    ``m / 3`` contacts and exactly ``nv`` velocities. ``a_out`` may be ``a0`` itself (it is
+    written last). The same arithmetic, bit for bit; every scratch entry is written before it
+    is read."""
+    m, nv = rows.shape
+    mats, vecs, per_row, cones, per_contact_rows = scratch
+    L, M, H = mats[0], mats[1], mats[2]
+    unit, a, grad, step, at = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
+    sR, aref, ft = per_row[0, :m], per_row[1, :m], per_row[2, :m]
+    nc = m // 3
+    Hc, Ht = cones[0, :nc], cones[1, :nc]
+    Jc, HJ = per_contact_rows[0], per_contact_rows[1]
+    unit[:] = 0.0
     spd_factor(D, nv, L)
     for j in range(nv):
         unit[j] = 1.0
         spd_substitute(L, unit, nv, M[j])
         unit[j] = 0.0
-    W = rows @ D
+    W = W_buf[:m * nv].reshape((m, nv))
+    np.dot(rows, D, W)
     d_max = SOFT_SOLIMP[1]
     bcoef = 2.0 / (d_max * tc)
     kcoef = 1.0 / (d_max * d_max * tc * tc * SOFT_DAMPRATIO * SOFT_DAMPRATIO)
-    sR = np.empty(m)
-    aref = np.empty(m)
     for r0 in range(0, m, 3):
         d = soft_impedance(depth[r0])
         s_n = np.sqrt((1.0 - d) / d * weight[r0 // 3])
@@ -1046,21 +1088,11 @@ def elliptic_contact_acceleration(D, a0, v, rows, depth, drift, weight, mu1, mu2
                 jv += rows[r0 + e, col] * v[col]
             aref[r0 + e] = -bcoef * jv - drift[r0 + e]
         aref[r0] -= kcoef * d * depth[r0]
-    a = a0.copy()
+    a[:] = a0
     for col in range(nv):
         for j in range(m):
             a[col] += W[j, col] * f[j]
-    nc = m // 3
-    Hc = np.empty((nc, 3, 3))
-    Ht = np.empty((nc, 3, 3))
-    ft = np.empty(m)
     cost = _elliptic_cost(rows, aref, sR, mu1, a, a0, M, f, Hc)
-    H = np.empty((nv, nv))
-    Jc = np.empty((3, nv))
-    HJ = np.empty((3, nv))
-    grad = np.empty(nv)
-    step = np.empty(nv)
-    at = np.empty(nv)
     iterations = 0
     for it in range(1, 51):
         size = 1e-300
@@ -1143,19 +1175,52 @@ def soft_scratch(n_features: int, nv: int):
     (each step allocated 17 arrays: 8.9 -> 8.5 us per step on the pyramid, the same arithmetic).
 
     Returns the tuple ``(rows, depth, drift, Jp, f, weight, W, A, rhs, free, idx, sub, L, rs, zs,
-    z)`` that :func:`soft_contact_acceleration` unpacks."""
+    z)`` that :func:`soft_contact_acceleration` unpacks; :func:`soft_elliptic_acceleration` uses
+    its first seven (the elliptic cone's three rows a point fit in the pyramid's four)."""
     m = 4 * n_features
     return (np.empty(m * nv), np.empty(m), np.empty(m), np.empty((3, nv)), np.empty(m), np.empty(n_features),
             np.empty(m * nv), np.empty(m * m), np.empty(m), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.int64),
             np.empty((m, m)), np.empty((m, m)), np.empty(m), np.empty(m), np.empty(m))
 
 
+@njit(cache=True, inline="always")
+def _touching_contacts(v, Minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground, elliptic, body_weight,
+                       warm, scratch):
+    """What both soft-constraint solvers start from: ``Minv`` made whole (Pinocchio fills its
+    upper triangle), the touching points' rows, depths and drifts (:func:`soft_contact_rows`,
+    ``elliptic`` choosing the cone's rows), their last forces from ``warm`` and their bodies'
+    weights, as views of :func:`soft_scratch`'s arrays. With no point touching, ``rows`` has no
+    row and ``warm`` is zeroed."""
+    nv = v.shape[0]
+    for i in range(nv):
+        for j in range(i):
+            Minv[i, j] = Minv[j, i]
+    mu1 = ground[G_MU_C]
+    rows_buf, depth_buf, drift_buf, Jp, f_buf, weight_buf = scratch[:6]
+    rows, depth, drift = soft_contact_rows_into(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, v, mu1,
+                                                mu1 * ground[G_LATERAL], elliptic, rows_buf, depth_buf, drift_buf, Jp)
+    m = rows.shape[0]
+    per = 3 if elliptic else 4
+    f = f_buf[:m]
+    weight = weight_buf[:m // per]
+    if m == 0:
+        warm[:, :] = 0.0
+        return rows, depth, drift, f, weight
+    row = 0
+    for k in range(X.shape[0]):       # the last step's forces of the points touching now
+        if X[k, 2] < 0.0:
+            for e in range(per):
+                f[row + e] = warm[k, e]
+            weight[row // per] = body_weight[f_body[k]]
+            row += per
+    return rows, depth, drift, f, weight
+
+
 @njit(cache=True)
-def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground, elliptic,
-                              body_weight, warm, a, scratch):
+def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground, body_weight,
+                              warm, a, scratch):
     """Accelerations (nv,) under the soft-constraint contact law, MuJoCo's (condim 3), on the
-    friction pyramid or, with ``elliptic``, on the elliptic cone
-    (:func:`elliptic_contact_acceleration`; the rest of this docstring is the pyramid's).
+    friction pyramid (on the elliptic cone: :func:`soft_elliptic_acceleration`).
 
     Every touching point (``X[k, 2] < 0``, from the last :func:`generalized_forces` on this
     state with the compliant ground switched off) gets the four edge rows
@@ -1197,10 +1262,8 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
             velocities :func:`ground_forces` left.
         ground: the ground parameters: ``mu1 = G_MU_C`` along the body, ``mu2 = mu1 G_LATERAL``
             sideways [1], the time constant ``tc = G_TC`` [s] (the others are unused).
-        elliptic: the elliptic cone instead of the pyramid.
         body_weight: (n_bodies,) each body's weight ``w`` at the reference pose [1/kg].
-        warm: (nf, 4) each feature's edge forces [N] of the last step (on the elliptic cone its
-            normal and two friction forces in the first three columns), the solver's start;
+        warm: (nf, 4) each feature's edge forces [N] of the last step, the solver's start;
             overwritten with this step's (zero where not touching).
         a: (nv,) the acceleration without contact ``a0`` on entry (Pinocchio's ABA under the
             generalized force without contact), the acceleration with the contact forces on
@@ -1211,34 +1274,13 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
     Returns:
         the solver's iterations (0 without contact).
     """
-    nv = v.shape[0]
-    for i in range(nv):               # D^-1 whole: Pinocchio fills its upper triangle
-        for j in range(i):
-            Minv[i, j] = Minv[j, i]
-    mu1, tc = ground[G_MU_C], ground[G_TC]
-    (rows_buf, depth_buf, drift_buf, Jp, f_buf, weight_buf, W_buf, A_buf, rhs_buf, free, idx, sub, L, rs, zs,
-     z) = scratch
-    rows, depth, drift = soft_contact_rows_into(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, v, mu1,
-                                                mu1 * ground[G_LATERAL], elliptic, rows_buf, depth_buf, drift_buf, Jp)
-    m = rows.shape[0]
+    rows, depth, drift, f, weight = _touching_contacts(v, Minv, floating, parents, vidx, f_body, X, kin_R, kin_v,
+                                                       ground, False, body_weight, warm, scratch)
+    m, nv = rows.shape
     if m == 0:
-        warm[:, :] = 0.0
         return 0
-    per = 3 if elliptic else 4
-    f = f_buf[:m]
-    weight = weight_buf[:m // per]
-    row = 0
-    for k in range(X.shape[0]):       # the last step's forces of the points touching now
-        if X[k, 2] < 0.0:
-            for e in range(per):
-                f[row + e] = warm[k, e]
-            weight[row // per] = body_weight[f_body[k]]
-            row += per
-    if elliptic:
-        iterations = elliptic_contact_acceleration(Minv, a.copy(), v, rows, depth, drift, weight, mu1,
-                                                   mu1 * ground[G_LATERAL], tc, f, a)
-        _store_warm(X, f, per, warm)
-        return iterations
+    mu1, tc = ground[G_MU_C], ground[G_TC]
+    W_buf, A_buf, rhs_buf, free, idx, sub, L, rs, zs, z = scratch[6:]
     W = W_buf[:m * nv].reshape((m, nv))
     np.dot(rows, Minv, W)             # rows D^-1, D^-1 symmetric
     A = A_buf[:m * m].reshape((m, m))
@@ -1259,10 +1301,34 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
                 ja += rows[j, col] * a[col]
             rhs[j] = -bcoef * jv - kcoef * d * depth[j] - drift[j] - ja
     iterations = nonnegative_qp_into(A, rhs, f, free, idx, sub, L, rs, zs, z)
-    _store_warm(X, f, per, warm)
+    _store_warm(X, f, 4, warm)
     for col in range(nv):
         acc = 0.0
         for j in range(m):
             acc += W[j, col] * f[j]
         a[col] += acc
+    return iterations
+
+
+@njit(cache=True)
+def soft_elliptic_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground, body_weight,
+                               warm, a, scratch, cone_scratch):
+    """Accelerations (nv,) under the soft-constraint contact law on MuJoCo's elliptic friction
+    cone (:func:`elliptic_contact_acceleration`); the arguments are
+    :func:`soft_contact_acceleration`'s, with ``warm``'s first three columns each feature's
+    normal and two friction forces [N] and ``cone_scratch`` :func:`elliptic_scratch` for at
+    least ``X``'s features (the solver's working arrays; ``scratch`` holds the rows).
+
+    Returns:
+        the Newton iterations (0 without contact).
+    """
+    rows, depth, drift, f, weight = _touching_contacts(v, Minv, floating, parents, vidx, f_body, X, kin_R, kin_v,
+                                                       ground, True, body_weight, warm, scratch)
+    if rows.shape[0] == 0:
+        return 0
+    mu1 = ground[G_MU_C]
+    iterations = elliptic_contact_acceleration_into(Minv, a, v, rows, depth, drift, weight, mu1,
+                                                    mu1 * ground[G_LATERAL], ground[G_TC], f, a, scratch[6],
+                                                    cone_scratch)
+    _store_warm(X, f, 3, warm)
     return iterations

@@ -296,7 +296,7 @@ class Simulator:
     MuJoCo's contact law: a soft constraint on the friction pyramid's edges, solved for all
     contacts together (:func:`integrators.kernels.soft_contact_acceleration`), or
     ``"soft_elliptic"``, the same constraint on MuJoCo's elliptic friction cone
-    (:func:`integrators.kernels.elliptic_contact_acceleration`); both with sliding friction
+    (:func:`integrators.kernels.soft_elliptic_acceleration`); both with sliding friction
     ``mu_c`` along the body and ``lateral_friction_ratio`` x ``mu_c`` sideways, no Stribeck or
     viscous term, ``k1``/``k2`` unused, their time constant the parameter ``contact_time_constant``;
     velocity-form steps only, about twice the cost.
@@ -485,11 +485,13 @@ class Simulator:
         if self.contact_law == "compliant":
             return pin.aba(model, data, q, v, tau)
         a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD).copy()
-        K.soft_contact_acceleration(v, pin.computeMinverse(model, data).copy(), self.model.chain.floating,
-                                    self._chain_i[:, 0], self._chain_i[:, 2], self._feat_i[:, 0], self._X, self._kin_R,
-                                    self._kin_v, self.ground, K.SOFT_LAWS[self.contact_law],
-                                    self.model.reference_weights, self._soft_warm, a,
-                                    K.soft_scratch(len(self._feat_i), self.model.nv))
+        args = (v, pin.computeMinverse(model, data).copy(), self.model.chain.floating, self._chain_i[:, 0],
+                self._chain_i[:, 2], self._feat_i[:, 0], self._X, self._kin_R, self._kin_v, self.ground,
+                self.model.reference_weights, self._soft_warm, a, K.soft_scratch(len(self._feat_i), self.model.nv))
+        if K.SOFT_LAWS[self.contact_law]:
+            K.soft_elliptic_acceleration(*args, K.elliptic_scratch(len(self._feat_i), self.model.nv))
+        else:
+            K.soft_contact_acceleration(*args)
         return a
 
     def _momentum_step(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray,

@@ -68,7 +68,7 @@ def test_nonnegative_qp_solves_the_lcp_exactly():
 
 
 def test_the_solvers_scratch_carries_nothing_from_one_step_to_the_next(cobra):
-    """The pyramid's solver and rows on a rollout's scratch arrays (made once, larger than a
+    """Both soft laws' solvers and rows on a rollout's scratch arrays (made once, larger than a
     step needs, left with the last step's numbers) answer bit for bit what they answer on arrays
     of their own: no entry is read before it is written."""
     rng = np.random.default_rng(5)
@@ -86,6 +86,27 @@ def test_the_solvers_scratch_carries_nothing_from_one_step_to_the_next(cobra):
                                            np.full(big, np.nan))
         assert it_scratch == it_own and np.all(np.isfinite(on_scratch))
         np.testing.assert_array_equal(on_scratch, own)
+    nv, newton_steps = 9, 0
+    for trial in range(10):                       # the elliptic cone's Newton solve
+        nc = int(rng.integers(1, 5))
+        B = rng.normal(size=(nv, nv))
+        D = np.linalg.inv(B @ B.T + nv * np.eye(nv))
+        rows, v, a0 = rng.normal(size=(3 * nc, nv)), rng.normal(size=nv), 5 * rng.normal(size=nv)
+        depth, drift = np.repeat(-rng.uniform(1e-5, 2e-3, nc), 3), rng.normal(size=3 * nc)
+        weight, start = rng.uniform(0.2, 1.0, nc), np.abs(rng.normal(size=3 * nc)) * (trial % 2)
+        f_own, a_own = start.copy(), np.empty(nv)
+        it_own = K.elliptic_contact_acceleration(D, a0, v, rows, depth, drift, weight, 0.3, 0.5, 0.02, f_own, a_own)
+        scratch = K.elliptic_scratch(nc + 3, nv)
+        for s in scratch:
+            s.fill(np.nan)
+        f, a = start.copy(), a0.copy()            # the loop's call: the acceleration in place
+        it = K.elliptic_contact_acceleration_into(D, a, v, rows, depth, drift, weight, 0.3, 0.5, 0.02, f, a,
+                                                  np.full(4 * (nc + 3) * nv, np.nan), scratch)
+        assert it == it_own and np.all(np.isfinite(a)) and np.all(np.isfinite(f))
+        np.testing.assert_array_equal(a, a_own)
+        np.testing.assert_array_equal(f, f_own)
+        newton_steps += it
+    assert newton_steps >= 10                     # the solves iterated (not all separating at the start)
     sim = Simulator(cobra, soft(ModelParameters.nominal()))
     q = sim.rest_state(rng.uniform(-0.5, 0.5, cobra.n_joints), heading_rad=0.3).q
     q[2] -= 0.004
