@@ -21,9 +21,9 @@ counted on the same read-only arrays (a cache line both cores then wrote at ever
 thread now reads copies of its own, :func:`batch_rollout_loop`). Inlined, numba's
 reference-count pruning removes most of the rest. The arithmetic is the same, bit for bit. The
 soft-constraint laws' solvers stay out of line: inlined into the loop, the pyramid's made both
-laws slower. Within the elliptic cone's, the small helpers that the elliptic
-cone's Newton iterations call several times a step (the Cholesky factor and solve, the cone's
-projection and the primal cost) are inlined: each call counted a reference on every array it
+laws slower. Within the elliptic cone's, the small helpers that its Newton iterations call
+several times a step (the Cholesky factor and solve, the cone's projection and the primal
+cost) are inlined: each call counted a reference on every array it
 took (25.3 -> 24.2 us per elliptic step; the pyramid's unchanged). The pyramid's working
 arrays, and the elliptic cone's, are views of scratch arrays that a rollout's loop makes once
 (:func:`soft_scratch`, :func:`elliptic_scratch`), so that a step allocates none; each law has a
