@@ -43,7 +43,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/diagnose_matrix.py
 	$(PY) benchmarks/diagnose_matrix.py --current
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint
-	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law choose
+	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law choose --choose-among compliant,soft_constraint
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint --mujoco-contact stiff
 	$(PY) benchmarks/effect_signal.py
 	$(PY) benchmarks/channel_weighting.py
