@@ -560,7 +560,7 @@ def screening_start(effect: Effect, current: ModelParameters, before: ModelParam
                                                             for v in values]))
         k = int(np.argmin(costs))
         best, best_cost = trial.with_values(**{name: values[k]}), costs[k]
-        if base == "current":
+        if base == "current":  # values[0] is the effect inactive: no start of this base's own
             return None if k == 0 else best
     coarse = start_grid(effect, demand_nm=demand(straight), coarse=True)
     unbent_trial = library.transform(straight, {effect.name: coarse[0]})
