@@ -201,9 +201,11 @@ class NamedEffect:
     """An effect the workflow named, its fitted parameter and the evidence for it.
 
     Attributes:
-        name: the effect (``sysid.discrepancy.effects``); parameter, value, unit: its fitted parameter.
-        ci95: the parameter's 95 % interval (None if the fit gave none).
-        held_out_cost_reduction: fraction of the held-out cost removed by adding it.
+        name: the effect (``sysid.discrepancy.effects``); parameter, value, unit: its fitted parameter,
+            as in the diagnosis's final model (a later round refits it with the rest).
+        ci95: the parameter's 95 % interval from the final refit (None if the fit gave none).
+        held_out_cost_reduction: fraction of the held-out cost removed by adding it (the
+            evidence fields are those of the round that named it).
         held_out_runs_improved: held-out runs whose cost fell; delta_bic: BIC change (training).
         signature_match: how well the residual signature fits the effect's, in [0, 1].
         predicted_signature: the effect's predicted signature, in words.
@@ -908,12 +910,13 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
         final = final_refit(best.params, current, fit_set, weights, config)
         result.fits.append(final)
         current = final.params
-        interval = next((r for r in final.report if r.name == effect.parameter.name), None)
         result.effects.append(NamedEffect(
-            best.name, effect.parameter.name, current.value(effect.parameter.name), effect.parameter.unit,
-            (interval.ci_low, interval.ci_high) if interval else None, best.held_out_improvement,
+            best.name, effect.parameter.name, np.nan, effect.parameter.unit, None, best.held_out_improvement,
             best.runs_improved, best.delta_bic, best.signature_match, effect.signature))
         remaining.remove(best.name)
+    # each named effect's value and interval are the final model's: a later round's refit moves
+    # the parameters of the effects named before it too (the model a user gets is the last one)
+    result.effects = [_in_model(e, current, result.fits[-1]) for e in result.effects]
     result.params_after = current
     sims_after = [simulate_like(r, params=current) for r in holdout]
     result.held = pair_held_out(holdout, sims_before, sims_after)
@@ -923,6 +926,13 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
     result.verdict = verdict(result)
     result.seconds = time.perf_counter() - t0
     return result
+
+
+def _in_model(e: NamedEffect, params: ModelParameters, fit: FitResult) -> NamedEffect:
+    """``e`` with its parameter's value in ``params`` and its 95 % interval from ``fit``'s report."""
+    interval = next((r for r in fit.report if r.name == e.parameter), None)
+    return replace(e, value=params.value(e.parameter),
+                   ci95=(interval.ci_low, interval.ci_high) if interval else None)
 
 
 def _diagnose_each_law(train: Sequence[Run], holdout: Sequence[Run], law_starts: Mapping[str, ModelParameters],
