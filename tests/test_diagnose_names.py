@@ -1,8 +1,8 @@
 """The discrepancy workflow names the effect that is there, and nothing when none is.
 
 Short runs made by this simulator with parameter error (``mu_c``, ``joint_damping`` and
-``motor_km`` 9-60 % off, as in ``benchmarks/diagnose_accuracy.py``) and one library effect hidden
-at the benchmark's realistic magnitude: two training runs (0.5 and 0.65 Hz) and one held-out run
+``motor_km`` 9-60 % off, as in ``benchmarks/diagnose_accuracy.py``) and one library effect (or two)
+hidden at the benchmark's realistic magnitude: two training runs (0.5 and 0.65 Hz) and one held-out run
 (0.5 Hz) of 3 s from random poses, measured like the reference dataset (quantised encoders, mocap
 noise and dropouts). Seed 21 is not one the screening was developed on (the benchmark's is 3).
 """
