@@ -322,9 +322,12 @@ def test_cut_bus_cable_stops_every_servo_by_its_watchdog(tmp_path: Path, emulato
     stops = emu.stats().watchdog_stops_s
     assert sorted(stops) == list(range(1, 12))
     # 100 ms after the last packet each heard, i.e. at most one 20 ms cycle before the cut,
-    # plus one 1 ms physics step of the emulator
+    # plus one 1 ms physics step of the emulator, plus up to one cycle late: an emulated servo
+    # also counts the silence on the wall clock (``watchdog_due``), and when the emulator's
+    # thread was starved near the cut its plant catches up faster than the wall, so the stop
+    # lands later in emulated time by that starvation (at 0.6058 s once, in a loaded fresh-clone run)
     for servo_id, at in stops.items():
-        assert 0.5 + 0.1 - 0.025 <= at <= 0.5 + 0.1 + 0.002, (servo_id, at)
+        assert 0.5 + 0.1 - 0.025 <= at <= 0.5 + 0.1 + 0.002 + 0.020, (servo_id, at)
     assert [emu.register(i, ct.BUS_WATCHDOG) for i in range(1, 12)] == [-1] * 11
     time.sleep(0.3)  # the ideal servos settle on the pose they were stopped in (30 ms lag)
     assert all(abs(emu.register(i, ct.PRESENT_VELOCITY)) <= 1 for i in range(1, 12))
