@@ -849,6 +849,7 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
     train_pairs = [(r, simulate_like(r, params=current)) for r in fit_set]
     result.signature = localise(train_pairs + list(zip(holdout, sims_before)))
     remaining = list(library.names)
+    named: list[Candidate] = []  # the candidate named in each round
     profile_set = spread_over_gaits(fit_set, config.profile_runs)
     for round_ in range(config.max_effects):
         progress(f"round {round_ + 1}: refitting without a new effect, and with each of "
@@ -906,17 +907,14 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
         if best is None:
             break
         progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
-        effect = library[best.name]
         final = final_refit(best.params, current, fit_set, weights, config)
         result.fits.append(final)
         current = final.params
-        result.effects.append(NamedEffect(
-            best.name, effect.parameter.name, np.nan, effect.parameter.unit, None, best.held_out_improvement,
-            best.runs_improved, best.delta_bic, best.signature_match, effect.signature))
+        named.append(best)
         remaining.remove(best.name)
     # each named effect's value and interval are the final model's: a later round's refit moves
     # the parameters of the effects named before it too (the model a user gets is the last one)
-    result.effects = [_in_model(e, current, result.fits[-1]) for e in result.effects]
+    result.effects = [_named(c, library[c.name], current, result.fits[-1]) for c in named]
     result.params_after = current
     sims_after = [simulate_like(r, params=current) for r in holdout]
     result.held = pair_held_out(holdout, sims_before, sims_after)
@@ -928,11 +926,14 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
     return result
 
 
-def _in_model(e: NamedEffect, params: ModelParameters, fit: FitResult) -> NamedEffect:
-    """``e`` with its parameter's value in ``params`` and its 95 % interval from ``fit``'s report."""
-    interval = next((r for r in fit.report if r.name == e.parameter), None)
-    return replace(e, value=params.value(e.parameter),
-                   ci95=(interval.ci_low, interval.ci_high) if interval else None)
+def _named(c: Candidate, effect: Effect, params: ModelParameters, fit: FitResult) -> NamedEffect:
+    """The named effect of candidate ``c``: its evidence from the round that named it, its
+    parameter's value in ``params`` and its 95 % interval from ``fit``'s report."""
+    name = effect.parameter.name
+    interval = next((r for r in fit.report if r.name == name), None)
+    return NamedEffect(c.name, name, params.value(name), effect.parameter.unit,
+                       (interval.ci_low, interval.ci_high) if interval else None, c.held_out_improvement,
+                       c.runs_improved, c.delta_bic, c.signature_match, effect.signature)
 
 
 def _diagnose_each_law(train: Sequence[Run], holdout: Sequence[Run], law_starts: Mapping[str, ModelParameters],
