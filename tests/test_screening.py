@@ -148,12 +148,15 @@ def test_the_refit_with_a_named_effect_also_starts_from_the_current_models_groun
         monkeypatch: pytest.MonkeyPatch) -> None:
     """A candidate whose refit moved the ground's stiffness and shape is refitted from there, from
     the current model's ground (the basin its fit chose) and from the base fit's grid of grounds
-    around the candidate (one whole-run fit, its best screened start); the lowest training cost
-    wins. A candidate that left the ground where it was gets its own refit and the grid's."""
+    (one whole-run fit, its best screened start); the lowest training cost wins. The grid is the
+    base fit's own: its soft start is the time constant the base fit started from, not the one the
+    candidate drifted to. A candidate that left the ground where it was gets its own refit and the
+    grid's."""
     import sysid.discrepancy.diagnose as diagnose
     from types import SimpleNamespace
     soft = ModelParameters.nominal().with_contact_law("soft_constraint").with_frozen(
         free=["joint_damping", "contact_time_constant", "contact_rounding"])
+    origin = soft.with_values(contact_time_constant=0.02)  # the base fit's start
     current = soft.with_values(contact_time_constant=0.009, contact_rounding=0.005)
     with_delay = LIBRARY.transform(current, {"actuator_delay": 0.04})
     starts, grids = [], []
@@ -174,21 +177,25 @@ def test_the_refit_with_a_named_effect_also_starts_from_the_current_models_groun
     monkeypatch.setattr(diagnose, "fit_lsq_steps", fit)
     monkeypatch.setattr(diagnose, "fit_from_shapes", grid)
     monkeypatch.setattr(diagnose, "Objective", lambda runs, params, weights: SimpleNamespace(params=params))
-    drifted = with_delay.with_values(contact_time_constant=0.02, contact_rounding=0.03)
-    kept = diagnose.final_refit(drifted, current, [], None, diagnose.DiagnoseConfig())
+    drifted = with_delay.with_values(contact_time_constant=0.042, contact_rounding=0.03, joint_damping=0.3)
+    kept = diagnose.final_refit(drifted, current, origin, [], None, diagnose.DiagnoseConfig())
     assert [(s.value("contact_time_constant"), s.value("contact_rounding")) for s in starts] == [
-        (0.02, 0.03), (0.009, 0.005)]
-    assert [(p is drifted, n) for p, n in grids] == [(True, 1)]   # the grid around the candidate, one whole-run fit
+        (0.042, 0.03), (0.009, 0.005)]
+    # one grid, one whole-run fit: the candidate's values with the ground at the base fit's start
+    [(grid_start, whole)] = grids
+    assert whole == 1 and grid_start.value("contact_time_constant") == 0.02
+    assert grid_start.value("joint_damping") == 0.3 and grid_start.value("actuator_delay") == 0.04
     assert all(s.value("actuator_delay") == 0.04 for s in starts)  # the effect's value is the candidate's in all
     assert kept.params.value("contact_time_constant") == 0.002 and kept.params.value("actuator_delay") == 0.04
     starts.clear()
     grids.clear()
     same_ground = with_delay.with_values(joint_damping=0.2)
-    assert diagnose.final_refit(same_ground, current, [], None, diagnose.DiagnoseConfig()).params.value(
+    assert diagnose.final_refit(same_ground, current, origin, [], None, diagnose.DiagnoseConfig()).params.value(
         "contact_time_constant") == 0.002
     assert len(starts) == 1 and len(grids) == 1
     starts.clear()
     grids.clear()
     ground_frozen = same_ground.with_frozen(frozen=["contact_time_constant", "contact_rounding"])
-    assert diagnose.final_refit(ground_frozen, current, [], None, diagnose.DiagnoseConfig()).params is ground_frozen
+    assert diagnose.final_refit(ground_frozen, current, origin, [], None,
+                                diagnose.DiagnoseConfig()).params is ground_frozen
     assert len(starts) == 1 and not grids                          # nothing to search: the default diagnosis
