@@ -307,6 +307,8 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   CHANGELOG "thirty-ninth stop"): gaps after naming, and what later rounds name.
 #: - ... and from the base fit's grid of grounds around the candidate when the ground's shape or
 #:   stiffness is free (MuJoCo's diagnoses; CHANGELOG "fortieth stop"): the same.
+#: - ... that grid from the base fit's own starts, not around the candidate's time constant
+#:   (soft-law diagnoses; CHANGELOG "forty-seventh stop"): the same.
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -364,6 +366,12 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # the pyramid's solver on scratch arrays made once per rollout loop (results bit for bit the
     # same; its step about 5 % shorter)
     ("2026-12-01T19:01", "989ebae", "the pyramid's step cost", ("contact_law",)),
+    # the refit after naming: the grid of grounds from the base fit's own starts (its 20 ms soft
+    # start), not from the time constant the candidate drifted to (soft-law diagnoses only: the
+    # compliant law's time constant is frozen, its grid unchanged)
+    ("2026-12-02T04:40", "dd9d5e4", "the refit after naming from the base fit's own grid of grounds (soft law)",
+     ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff",
+      "mujoco_robustness_soft_constraint")),
 )
 
 
