@@ -47,7 +47,8 @@
    no further horizon continuation is needed) and, when that refit moved the ground's shape or
    stiffness, also from it with those at the current model's values, the basin its fit chose,
    and, when either is free, from the base fit's own grid of them (its starts, not starts around
-   the candidate's ground: :func:`final_refit`); the lowest training cost is kept. Repeat for up to ``max_effects``.
+   the candidate's ground: :func:`final_refit`); the lowest training cost is kept. Repeat for up
+   to ``max_effects``.
 """
 from __future__ import annotations
 
