@@ -31,6 +31,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	$(PY) benchmarks/sim_speed.py
 	$(PY) benchmarks/fault_matrix.py
+	$(PY) benchmarks/run_io.py
 	$(PY) benchmarks/fit_speed.py
 	$(PY) benchmarks/recovery.py
 	$(PY) benchmarks/interval_coverage.py
@@ -40,6 +41,9 @@ bench: $(STAMP)
 	$(PY) benchmarks/mujoco_robustness.py --current
 	$(PY) benchmarks/mujoco_robustness.py --contact stiff --current
 	$(PY) benchmarks/mujoco_robustness.py --contact-law soft_constraint
+	$(PY) benchmarks/mujoco_robustness.py --floors
+	$(PY) benchmarks/mujoco_robustness.py --floors --contact stiff
+	$(PY) benchmarks/mujoco_robustness.py --floors --contact-law soft_constraint
 	$(PY) benchmarks/diagnose_matrix.py
 	$(PY) benchmarks/diagnose_matrix.py --current
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint

@@ -46,8 +46,17 @@ parameters freed and those it does not read frozen, as ``cobra diagnose --contac
 law that ``cobra fit --contact choose`` keeps on MuJoCo's runs, ``mujoco_fit_residual.md``);
 results then go to ``..._<law>.{json,md}``.
 
+``--floors`` diagnoses nothing either: per case and seed it reproduces the runs with our
+simulator at MuJoCo's own values (:func:`sysid.generators.mujoco_recording.twin_counterpart`,
+under ``--contact-law`` with MuJoCo's contact time constant) and the case's effect at its MuJoCo
+value in our library's form (:data:`FLOOR_COUNTERPARTS`), and reports the held-out final head
+error and joint RMSE that leaves: what a diagnosis that named the effect and found every value
+could reach with our model's structure, to read its "after" figures against. Results go to
+``..._floors.{json,md}``.
+
 Run: ``.venv/bin/python benchmarks/mujoco_robustness.py [--cases none,frictionloss] [--seeds 11]
-[--duration 6] [--contact stiff] [--contact-law soft_constraint] [--current] [--effect-sizes]``.
+[--duration 6] [--contact stiff] [--contact-law soft_constraint] [--current] [--effect-sizes]
+[--floors]``.
 """
 from __future__ import annotations
 
@@ -67,13 +76,14 @@ from cobra_model.parameters import CONTACT_LAWS
 from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
 from integrators.simulate import simulate_like
+from integrators.simulator import SimSettings, contact_resolved
 from sysid.discrepancy.diagnose import Diagnosis
 from sysid.generators.dataset import RunPlan
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.gap.metrics import compare_runs
 from sysid.identification.contact_choice import nominal_start
-from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_options
+from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_counterpart, twin_options
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
@@ -83,6 +93,15 @@ EVAL_SEEDS = (11,)
 COUNTERPARTS = {"frictionloss": ("joint_coulomb", 0.3), "forcerange": ("torque_limit", 2.0)}
 #: MuJoCo contacts the benchmark runs on (``--contact``).
 CONTACTS = ("default", "stiff")
+#: Per case, MuJoCo's effect in our model's terms at MuJoCo's value: library effects (name ->
+#: value) and parameter changes (name -> amount added), for ``--floors``.
+FLOOR_COUNTERPARTS: dict[str, tuple[dict[str, float], dict[str, float]]] = {
+    "none": ({}, {}),
+    "frictionloss": ({"joint_coulomb_friction": 0.3}, {}),
+    "armature_damping": ({}, {"armature": 0.03, "joint_damping": 0.2}),
+    "forcerange": ({"torque_saturation": 2.0}, {}),
+    "anisotropic_friction": ({"anisotropic_ground_friction": 2.0}, {}),
+}
 FREE = ["joint_damping", "motor_km", "k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", "friction_cone", "contact_rounding"]
 
 
@@ -136,6 +155,56 @@ def effect_sizes(chosen: list[str], cases: dict[str, tuple[str, dict[str, Any]]]
         print(f"| {label} | {q:.4f} | {head:.4f} | {ours[0]:.4f} | {ours[1]:.4f} |", flush=True)
 
 
+def at_mujoco_values(case: str, truth: ModelParameters, base: TwinOptions, law: str) -> ModelParameters:
+    """Our parameters at MuJoCo's values under ``law`` (the soft laws at MuJoCo's ``solref``
+    time constant) with ``case``'s effect in our terms (:data:`FLOOR_COUNTERPARTS`)."""
+    effects, added = FLOOR_COUNTERPARTS[case]
+    params = twin_counterpart(truth)
+    if law != "compliant":
+        params = params.with_values(contact_time_constant=base.solref[0]).with_contact_law(law)
+    params = params.with_values(**{n: params.value(n) + dv for n, dv in added.items()})
+    return EffectLibrary().transform(params, effects) if effects else params
+
+
+def floors(chosen: list[str], cases: dict[str, tuple[str, dict[str, Any]]], base: TwinOptions,
+           truth: ModelParameters, args: argparse.Namespace, seeds: list[int], model: CobraModel) -> list[dict]:
+    """Per case and seed: the gap our simulator leaves at MuJoCo's values (see the module doc),
+    on the held-out and the training runs, each run's and their means (the diagnosis's measure)."""
+    rows = []
+    for seed in seeds:
+        for case in chosen:
+            label, changes = cases[case]
+            progress = lambda msg, case=case, seed=seed: print(  # noqa: E731
+                f"[floors {case} seed {seed}] {msg}", file=sys.stderr, flush=True)
+            train, hold = make_data(dataclasses.replace(base, **changes), truth, args.duration, model, progress,
+                                    seed=seed)
+            params = at_mujoco_values(case, truth, base, args.contact_law)
+            settings = contact_resolved(SimSettings(), params)
+            progress(f"reproducing {len(train) + len(hold)} runs at MuJoCo's values")
+            row = {"case": case, "label": label, "seed": seed, "dt_s": settings.dt}
+            for part, runs in (("held_out", hold), ("train", train)):
+                gaps = [compare_runs(r, simulate_like(r, params=params, settings=settings, model=model)) for r in runs]
+                row[f"{part}_head_final_m"] = [g.head.final for g in gaps]
+                row[f"{part}_joint_rmse_rad"] = [g.mean_joint_rmse for g in gaps]
+            rows.append(row)
+    return rows
+
+
+def floors_markdown(rows: list[dict], law: str) -> str:
+    """The ``--floors`` table."""
+    lines = [f"Our simulator ({law} law) at MuJoCo's values with each case's effect at its MuJoCo value, "
+             "against MuJoCo's runs: the gap a diagnosis that found every value would leave.", "",
+             "| MuJoCo effect | seed | held-out final head [m]: mean (per run) | held-out joint RMSE [rad]: mean | "
+             "training final head [m]: mean | training joint RMSE [rad]: mean |",
+             "|---|---:|---|---:|---:|---:|"]
+    for r in rows:
+        per_run = ", ".join(f"{h:.4f}" for h in r["held_out_head_final_m"])
+        lines.append(f"| {r['label']} | {r['seed']} | {np.mean(r['held_out_head_final_m']):.4f} ({per_run}) | "
+                     f"{np.mean(r['held_out_joint_rmse_rad']):.4f} | {np.mean(r['train_head_final_m']):.4f} | "
+                     f"{np.mean(r['train_joint_rmse_rad']):.4f} |")
+    return "\n".join(lines) + "\n"
+
+
 def main(argv: list[str] | None = None) -> int:
     truth = ModelParameters.nominal().with_values(**TRUTH)
     cases = _cases(twin_options(truth))
@@ -157,6 +226,9 @@ def main(argv: list[str] | None = None) -> int:
                              "noise and resolution); the diagnosis then fits them too (results *_current.*)")
     parser.add_argument("--effect-sizes", action="store_true",
                         help="print each effect's size beside our simulator's difference from MuJoCo; no diagnosis")
+    parser.add_argument("--floors", action="store_true",
+                        help="our simulator at MuJoCo's values with each case's effect: the held-out gap it leaves "
+                             "(results ..._floors.*); no diagnosis")
     args = parser.parse_args(argv)
     chosen = [c.strip() for c in args.cases.split(",") if c.strip()]
     unknown = [c for c in chosen if c not in cases]
@@ -173,6 +245,11 @@ def main(argv: list[str] | None = None) -> int:
     model = CobraModel.load()
     if args.effect_sizes:
         effect_sizes(chosen, cases, base, truth, args.duration, model)
+        return 0
+    if args.floors:
+        rows = floors(chosen, cases, base, truth, args, seeds, model)
+        write_results(name + "_floors", rows, meta(args, seeds, chosen, base), floors_markdown(rows, args.contact_law))
+        print(floors_markdown(rows, args.contact_law))
         return 0
     start = nominal_start(args.contact_law, FREE)
     rows: list[dict] = []

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import json
-import time
 from collections.abc import Callable
 from pathlib import Path
 
@@ -183,7 +182,9 @@ def test_mocap_gaps_empty_or_nan_are_accepted(tmp_path: Path) -> None:
     assert np.isfinite(run.head_quat[[0, 2, 4]]).all()
 
 
-def test_reading_a_large_file_is_fast(tmp_path: Path) -> None:
+def test_a_long_file_with_every_column_reads_back_whole(tmp_path: Path) -> None:
+    """10 000 rows (200 s at 50 Hz) with every column the format has come back value for value
+    and row for row. (How fast: ``benchmarks/run_io.py``, against ``np.loadtxt``.)"""
     n = 10_000
     base = make_run(n)
     run = Run(
@@ -191,15 +192,15 @@ def test_reading_a_large_file_is_fast(tmp_path: Path) -> None:
         head_pos=np.round(base.head_pos, 6), head_quat=base.head_quat,
         dq=np.round(base.q * 3, 6), current=np.round(base.q_ref * 0.1, 6),
         bodies={"tail": np.round(base.head_pos - 1, 6)},
-        extra={"marker": np.array(["x"] * n)},
+        extra={"marker": np.array([f"m{i}" for i in range(n)])},
     )
     path = write_run(run, tmp_path / "big.csv")
-    assert len(path.read_text().splitlines()[0].split(",")) >= 50
-    start = time.perf_counter()
+    assert len(path.read_text().splitlines()) == n + 1
     back = read_run(path)
-    elapsed = time.perf_counter() - start
-    assert back.n_samples == n
-    assert elapsed < 1.0, f"reading {n} rows took {elapsed:.2f} s"
+    for name in ("t", "q_ref", "q", "dq", "current", "head_pos", "head_quat"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(run, name), err_msg=name)
+    np.testing.assert_array_equal(back.bodies["tail"], run.bodies["tail"])
+    assert back.extra["marker"].tolist() == run.extra["marker"].tolist()
 
 
 # ---------------------------------------------------------------------------------------------
