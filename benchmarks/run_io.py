@@ -19,15 +19,14 @@ import argparse
 import csv
 import sys
 import tempfile
-import time
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import write_results  # noqa: E402
+from benchmarks._timing import best_of_rounds  # noqa: E402
 from cobra_model.run import NUM_JOINTS, Run  # noqa: E402
 from cobra_model.run_files import read_run, write_run  # noqa: E402
 
@@ -45,21 +44,6 @@ def long_run(n: int) -> Run:
                head_pos=np.round(head, 6), head_quat=quat, dq=np.round(0.9 * np.cos(q_ref), 6),
                current=np.round(0.1 * q_ref, 6), bodies={"tail": np.round(head - 1.0, 6)},
                extra={"marker": np.array(["x"] * n)})
-
-
-def best_of(paths: dict[str, Callable[[], object]], repeats: int) -> dict[str, float]:
-    """Each of ``paths`` once per round for ``repeats`` rounds, in turn, after one warm-up call;
-    the best round's wall time [s] of each (rounds, not back-to-back repeats: this host's speed
-    drifts over seconds, and every path should see the same phases)."""
-    for run in paths.values():
-        run()
-    best = dict.fromkeys(paths, np.inf)
-    for _ in range(repeats):
-        for name, run in paths.items():
-            t0 = time.perf_counter()
-            run()
-            best[name] = min(best[name], time.perf_counter() - t0)
-    return best
 
 
 def csv_rows(path: Path) -> int:
@@ -85,7 +69,7 @@ def main(argv: list[str] | None = None) -> None:
         np.testing.assert_array_equal(back.q, run.q)  # a benchmark of a reader that reads wrong proves nothing
         print(f"{args.rows} rows x {len(header)} columns, {path.stat().st_size / 1e6:.1f} MB; "
               f"{args.repeats} rounds ...", file=sys.stderr)
-        best = best_of({
+        best = best_of_rounds({
             "read_run": lambda: read_run(path),
             "write_run": lambda: write_run(run, Path(tmp) / "out.csv", force=True),
             "np.loadtxt": lambda: np.loadtxt(path, delimiter=",", skiprows=1, usecols=numeric),

@@ -36,6 +36,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import write_results  # noqa: E402
+from benchmarks._timing import best_of_rounds  # noqa: E402
 from cobra_model import CobraModel, ModelParameters, SidewindingGait  # noqa: E402
 from integrators import Simulator, mujoco_twin  # noqa: E402
 from integrators.simulator import SimSettings  # noqa: E402
@@ -48,23 +49,9 @@ REPEATS = 5
 
 
 def interleaved_best(runs: dict[str, Callable[[], object]]) -> dict[str, float]:
-    """Each of ``runs`` (10 s of simulation each) once per round for ``REPEATS`` rounds, in turn;
-    the best round per 1 ms step [s] of each.
-
-    Rounds rather than back-to-back repeats: this host's speed drifts over seconds (a virtual
-    machine beside others), so the repeats of one path taken together can all fall in a slow
-    phase that MuJoCo's missed (the same code's soft-law ratio read 0.53 to 0.73 in runs minutes
-    apart, 2026-11-27).
-    Spread over the whole run, each path's best sees the same phases as MuJoCo's."""
-    for run in runs.values():
-        run()  # compile, warm caches
-    best = dict.fromkeys(runs, np.inf)
-    for _ in range(REPEATS):
-        for name, run in runs.items():
-            t0 = time.perf_counter()
-            run()
-            best[name] = min(best[name], time.perf_counter() - t0)
-    return {name: t / (DURATION / DT) for name, t in best.items()}
+    """Each of ``runs`` (10 s of simulation each) once per round for ``REPEATS`` rounds, in turn
+    (:func:`benchmarks._timing.best_of_rounds`); the best round per 1 ms step [s] of each."""
+    return {name: t / (DURATION / DT) for name, t in best_of_rounds(runs, REPEATS).items()}
 
 
 def mujoco_run(model: CobraModel, table: np.ndarray, self_collision: bool = False,
