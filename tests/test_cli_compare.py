@@ -66,6 +66,7 @@ def test_run_against_itself_has_zero_errors(run_csv: Path, capsys: pytest.Captur
     assert report["head_mean_error_m"] == 0.0
     assert report["joint_rmse_rad"]["per_joint"] == [0.0] * NUM_JOINTS
     assert report["joint_rmse_rad"]["mean"] == 0.0
+    assert [entry["joint"] for entry in report["cpg_error"]] == list(range(1, NUM_JOINTS + 1))
     for entry in report["cpg_error"]:
         assert (entry["amplitude"], entry["frequency"], entry["phase"]) == (0.0, 0.0, 0.0)
     assert report["window_correlation"]["mean"] == pytest.approx(1.0)

@@ -16,6 +16,7 @@ from cobra_model.run import Run
 from cobra_model.run_files import write_run
 from integrators.simulate import simulate_gait
 from sysid.discrepancy.effects import EffectLibrary
+from sysid.identification.lsq import FitStatus
 from sysid.identification.objective import Weights
 from sysid.identification.splits import expand
 
@@ -42,7 +43,8 @@ def test_fit_writes_parameters_and_report(data, tmp_path, capsys):
     assert main(args) == 0
     doc = json.loads(out.read_text())
     assert doc["parameters"]["mu_c"]["frozen"] is False
-    assert doc["fit"]["status"] and doc["fit"]["evaluations"] > 0
+    assert doc["fit"]["status"] in {status.value for status in FitStatus} and doc["fit"]["evaluations"] > 0
+    assert doc["fit"]["cost"] < doc["fit"]["initial_cost"]   # the fit lowered the training cost
     # the truth has gearbox Coulomb friction the fitted model lacks: the residuals say so
     whiteness = doc["fit"]["residual_whiteness"]
     assert whiteness["white"] is False and "understate" in whiteness["verdict"]
@@ -52,7 +54,10 @@ def test_fit_writes_parameters_and_report(data, tmp_path, capsys):
     html = (report / "report.html").read_text()
     assert "Residuals: NOT white" in html
     assert "held_out_head_error.png" in html and "replay.html" in html
-    assert ModelParameters.load(out).value("mu_c") != ModelParameters.nominal().mu_c
+    # the file's parameters are the fit's result, moved from the start
+    fitted = ModelParameters.load(out).value("mu_c")
+    assert doc["fit"]["report"][0]["name"] == "mu_c" and doc["fit"]["report"][0]["value"] == fitted
+    assert fitted != ModelParameters.nominal().mu_c
     assert main(args) == 2                                  # no overwrite without --force
     assert "--force" in capsys.readouterr().err
 
@@ -89,7 +94,11 @@ def test_diagnose_leaves_the_currents_out_when_asked(data, tmp_path):
     out = tmp_path / "diag"
     assert main(["diagnose", *map(str, train), "--holdout", str(hold), "--out", str(out), "--free", "mu_c",
                  "--max-effects", "0", "--no-current", "--no-check"]) == 0
-    assert json.loads((out / "diagnosis.json").read_text())["channel_scales"]["current_scale_a"] is None
+    doc = json.loads((out / "diagnosis.json").read_text())
+    assert doc["channel_scales"]["current_scale_a"] is None
+    # the runs log currents (`cobra simulate`'s do), but the fit's residuals are the head's x, y
+    # and the 11 joints of each training run only
+    assert doc["residual_whiteness"]["series"] == 13 * len(train)
 
 
 @pytest.mark.parametrize("command", ["fit", "diagnose"])

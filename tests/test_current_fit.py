@@ -71,6 +71,9 @@ def test_cli_fit_with_current_prints_both_intervals(runs, tmp_path, capsys) -> N
     assert "; without the current [" in printed and "x as wide)" in printed
     doc = json.loads(out.read_text())
     assert set(doc["fit"]["intervals_without_current"]) == {"motor_km", "joint_damping"}
+    for name in ("motor_km", "joint_damping"):   # the file's intervals hold the values the runs were made with
+        low, high = doc["fit"]["intervals"][name]
+        assert low <= TRUTH.value(name) <= high, (name, low, high)
     assert "95% low without current" in (tmp_path / "rep" / "report.html").read_text()
     assert main(["fit", *paths[:2], "--method", "ppo", "--current", "--out", str(tmp_path / "p.json")]) == 2
     assert "--current: only least squares" in capsys.readouterr().err

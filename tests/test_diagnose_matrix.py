@@ -235,7 +235,9 @@ def test_write_runs_writes_one_jobs_runs_and_the_cli_command_that_diagnoses_them
     folder = tmp_path / "runs" / "mujoco_encoder_offset_realistic_31"
     written = [read_run(p) for p in (*args.runs, *args.holdout)]
     assert [Path(p).parent for p in (*args.runs, *args.holdout)] == [folder] * 3
-    for run, made in zip(written, make_runs(job, CobraModel.load())):  # the job's own runs, seed for seed
+    made_runs = make_runs(job, CobraModel.load())
+    assert len(made_runs) == len(written) == 3
+    for run, made in zip(written, made_runs):  # the job's own runs, seed for seed
         np.testing.assert_array_equal(run.q, made.q)
         np.testing.assert_array_equal(run.t, made.t)
     assert not (tmp_path / "results").exists()

@@ -50,6 +50,9 @@ def test_the_hidden_effect_is_named_first(effect):
     assert d.effects, f"nothing named; candidates: {[c.to_json() for c in d.rounds[0][:3]]}"
     assert d.effects[0].name == effect
     assert not d.structural
+    # at its hidden value: within 10 % (3 s runs, quantised encoders; a torque limit's value is
+    # seen only where the demand exceeds it, and comes out 1-4 % high in the matrix's runs)
+    assert d.effects[0].value == pytest.approx(MAGNITUDES[effect], rel=0.1)
     # naming it more than halves the held-out cost (what the workflow judges by: head and joints)
     assert d.effects[0].held_out_cost_reduction > 0.5
     # and the held-out head error halves, unless the base fit already left it at the floor that
@@ -76,6 +79,6 @@ def test_each_of_two_named_effects_is_reported_as_the_final_model_holds_it():
     for e in d.effects:
         assert e.value == d.params_after.value(e.parameter)
         low, high = e.ci95
-        assert low <= e.value <= high
+        assert low <= e.value <= high and low <= MAGNITUDES[e.name] <= high   # the interval holds the truth
         # recovered within 10 % of the hidden value (3 s runs, quantised encoders)
         assert e.value == pytest.approx(MAGNITUDES[e.name], rel=0.1)

@@ -62,7 +62,7 @@ def test_hac_interval_covers_under_autocorrelation_where_the_naive_one_does_not(
 
 def test_hac_interval_keeps_nominal_coverage_with_white_errors():
     naive, hac = slope_coverage(0.0)
-    assert naive >= 0.91 and hac >= 0.91          # nominal 0.95, standard error 1.1 points
+    assert 0.91 <= naive <= 0.99 and 0.91 <= hac <= 0.99   # nominal 0.95, standard error 1.1 points
 
 
 def test_white_scores_get_the_gauss_newton_variance_back():
@@ -144,14 +144,23 @@ def test_whiteness_calls_weak_significant_correlation_white_enough():
 
 
 def test_whiteness_skips_missing_samples():
-    """Gaps stored as zeros would read as a change of variance; marked missing they are skipped."""
+    """Residuals marked missing (motion-capture gaps) are not read: whatever a gap holds, the
+    test gives the same statistic; read as data, a filler with structure is structure."""
     rng = np.random.default_rng(4)
     blocks = series_blocks(2, 200, 2)
     r = rng.normal(size=800)
     gaps = np.zeros(800, dtype=bool)
     gaps[blocks[0][50:90, :].ravel()] = True
-    r[gaps] = 0.0
-    assert whiteness(r, blocks, missing=gaps).white
+    zeros, ramp = r.copy(), r.copy()
+    zeros[gaps] = 0.0
+    ramp[gaps] = np.linspace(5.0, 10.0, int(gaps.sum()))  # a slow ramp, 5-10 noise deviations
+    masked = whiteness(zeros, blocks, missing=gaps)
+    assert masked.white and masked.series == 4 and masked.verdict.startswith("white (")
+    other_filler = whiteness(ramp, blocks, missing=gaps)
+    assert (other_filler.statistic, other_filler.p_value, other_filler.lag1) == \
+        (masked.statistic, masked.p_value, masked.lag1)
+    read = whiteness(ramp, blocks)
+    assert not read.white and read.lag1 > 0.2
 
 
 @pytest.fixture(scope="module")
@@ -205,5 +214,7 @@ def test_fit_reports_whiteness_and_both_intervals(short_objective):
     assert isinstance(w, Whiteness) and w.verdict and w.series == 13 and 0.0 <= w.p_value <= 1.0
     assert "HAC" in result.interval_method and "start-pose" in result.interval_method
     (rep,) = result.report
-    assert rep.ci_low < rep.value < rep.ci_high
-    assert rep.ci_low_iid < rep.value < rep.ci_high_iid
+    # the runs were made at mu_c = 0.25 (the fit started at 0.27; 2 s of encoder and mocap noise
+    # leave an interval about +-0.001 wide): both intervals hold it
+    assert rep.name == "mu_c" and rep.value == pytest.approx(0.25, abs=0.002)
+    assert rep.ci_low <= 0.25 <= rep.ci_high and rep.ci_low_iid <= 0.25 <= rep.ci_high_iid

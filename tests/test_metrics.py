@@ -111,6 +111,7 @@ def test_identical_runs_have_no_gap() -> None:
     assert report.head.final == 0.0 and report.head.mean == 0.0
     assert report.head.body_errors["tail"].final == 0.0
     np.testing.assert_array_equal(report.joint_rmse, np.zeros(NUM_JOINTS))
+    assert [entry["joint"] for entry in report.cpg] == list(range(1, NUM_JOINTS + 1))
     for entry in report.cpg:
         assert entry["amplitude"] == pytest.approx(0.0, abs=1e-9)
         assert entry["frequency"] == pytest.approx(0.0, abs=1e-9)
@@ -128,7 +129,9 @@ def test_identical_runs_have_no_gap() -> None:
 def test_known_phase_shift_is_recovered(shift: float) -> None:
     measured = gait_run()
     simulated = gait_run(phase_shift=shift)
-    for entry in cpg_error(measured, simulated):
+    errors = cpg_error(measured, simulated)
+    assert len(errors) == NUM_JOINTS
+    for entry in errors:
         assert entry["phase"] == pytest.approx(shift, abs=1e-3)
         assert entry["amplitude"] == pytest.approx(0.0, abs=1e-6)
         assert entry["frequency"] == pytest.approx(0.0, abs=1e-6)
@@ -140,7 +143,9 @@ def test_known_phase_shift_is_recovered(shift: float) -> None:
 def test_phase_difference_wraps() -> None:
     measured = gait_run(phase_shift=3.0)
     simulated = gait_run(phase_shift=-3.0)
-    for entry in cpg_error(measured, simulated, labels=("m", "s")):
+    errors = cpg_error(measured, simulated, labels=("m", "s"))
+    assert len(errors) == NUM_JOINTS
+    for entry in errors:
         assert entry["phase"] == pytest.approx(2 * np.pi - 6.0, abs=1e-3)
         assert set(entry) == {"joint", "amplitude", "frequency", "phase", "m", "s"}
 
@@ -190,6 +195,7 @@ def test_runs_at_different_rates_and_spans() -> None:
     assert report.head.final == pytest.approx(0.05, abs=1e-6)
     assert report.head.mean == pytest.approx(0.05, abs=1e-6)
     assert np.all(report.joint_rmse < 2e-4)  # linear interpolation error of the 250 Hz run
+    assert len(report.cpg) == NUM_JOINTS
     for entry in report.cpg:
         assert abs(entry["phase"]) < 1e-3 and abs(entry["amplitude"]) < 1e-3
     assert report.correlation["measured_vs_simulated"]["min"] > 0.9999

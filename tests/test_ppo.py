@@ -181,6 +181,7 @@ def test_fit_ppo_smoke(tiny_objective: Objective, tmp_path) -> None:
     assert all(later[2] <= earlier[2] for earlier, later in zip(curve, curve[1:]))
     assert result.evaluations >= 2 and png.stat().st_size > 0
     assert result.params.free_names == tiny_objective.params.free_names
+    assert [row.name for row in result.report] == list(tiny_objective.params.free_names)
     for row in result.report:
         assert math.isnan(row.ci_low) and math.isnan(row.ci_high)
         assert row.identifiable and row.reason == "no interval (PPO)"

@@ -16,7 +16,9 @@ from sysid.discrepancy.diagnose import NamedEffect, StructuralDifference
 from sysid.identification.intervals import Whiteness
 from sysid.identification.lsq import FitResult, FitStatus, IterationLog, ParameterReport
 from sysid.identification.objective import ObjectiveTerms, Weights
+from sysid.gap.metrics import compare_runs
 from sysid.gap.report import GapSummary
+from test_metrics import AMPS, gait_run, with_head
 
 
 def through_text(doc: dict) -> dict:
@@ -35,12 +37,25 @@ def test_named_effect_and_structural_difference_round_trip():
     assert StructuralDifference.from_json(through_text(proxy.to_json())) == proxy
 
 
-def test_gap_summary_means_and_round_trip():
-    runs = {"a": {"head_final_error_m": 0.02, "head_mean_error_m": 0.01, "joint_rmse_rad": {"mean": 0.003}},
-            "b": {"head_final_error_m": 0.04, "head_mean_error_m": 0.03, "joint_rmse_rad": {"mean": 0.005}}}
-    summary = GapSummary(0.03, 0.02, 0.004, runs)
-    back = GapSummary.from_json(through_text(summary.to_json()))
-    assert back == summary and back.head_final_error_m == pytest.approx(0.03)
+def test_gap_summary_averages_the_runs_and_round_trips():
+    """``GapSummary.of`` averages each run's head errors over the runs that have a head pose
+    (None when none has) and the per-run mean joint RMSE over all runs."""
+    measured = gait_run(with_tail=False)
+    shifted = compare_runs(measured, gait_run(with_tail=False, head_offset=(0.03, 0.04, 0.0)))  # head 5 cm off
+    wider = compare_runs(measured, gait_run(with_tail=False, amp_scale=1.1))  # joints 10 % wider
+    blind = compare_runs(with_head(measured, np.full_like(measured.head_pos, np.nan)),
+                         gait_run(with_tail=False, head_offset=(0.3, 0.0, 0.0)))
+    wider_rmse = float(np.mean(0.1 * AMPS / np.sqrt(2.0)))  # RMS of 0.1 A sin over whole periods
+    summary = GapSummary.of({"shifted": shifted, "wider": wider, "blind": blind})
+    assert summary.head_final_error_m == pytest.approx(0.05 / 2, rel=1e-9)  # 5 cm and 0 cm; blind left out
+    assert summary.head_mean_error_m == pytest.approx(0.05 / 2, rel=1e-9)
+    assert summary.joint_rmse_rad == pytest.approx(wider_rmse / 3, rel=1e-3)  # 0, 10 %, 0 over three runs
+    assert set(summary.runs) == {"shifted", "wider", "blind"}
+    assert summary.runs["shifted"]["head_final_error_m"] == pytest.approx(0.05)
+    joint_only = GapSummary.of({"blind": blind})
+    assert joint_only.head_final_error_m is None and joint_only.head_mean_error_m is None
+    for s in (summary, joint_only):
+        assert GapSummary.from_json(through_text(s.to_json())) == s
 
 
 def test_objective_terms_sum_by_the_weights_and_round_trip():

@@ -286,8 +286,9 @@ def test_live_server_listens_on_loopback_only_and_serves_the_viewer(measured: Ru
         with urllib.request.urlopen(url, timeout=10) as page:
             assert page.status == 200 and b"MeshCat.Viewer" in page.read()
         assert scene.n_frames == frame_samples(measured.t, 10).size
+    assert listening_addresses(int(match.group(1))) == set()  # stopped with the block: nothing listens
     with pytest.raises(OSError):
-        urllib.request.urlopen(url, timeout=2)  # stopped with the block
+        urllib.request.urlopen(url, timeout=2)
 
 
 @pytest.mark.skipif(not Path("/proc/net/tcp").exists(), reason="needs Linux /proc/net/tcp")
