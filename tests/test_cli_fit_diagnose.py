@@ -1,6 +1,7 @@
 """End to end: `cobra fit` and `cobra diagnose` on small data made with known parameters."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 from pathlib import Path
@@ -13,7 +14,7 @@ from sysid.discrepancy.diagnose import NamedEffect
 from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from cobra_model.run import Run
-from cobra_model.run_files import write_run
+from cobra_model.run_files import read_run, write_run
 from integrators.simulate import simulate_gait
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.identification.lsq import FitStatus
@@ -99,6 +100,21 @@ def test_diagnose_leaves_the_currents_out_when_asked(data, tmp_path):
     # the runs log currents (`cobra simulate`'s do), but the fit's residuals are the head's x, y
     # and the 11 joints of each training run only
     assert doc["residual_whiteness"]["series"] == 13 * len(train)
+    # and the diagnosis is the one of the same runs recorded without currents, to the value
+    stripped = []
+    for path in [*train, hold]:
+        run = read_run(path)
+        assert run.current is not None
+        stripped.append(write_run(dataclasses.replace(run, current=None), tmp_path / "bare" / path.name))
+    bare = tmp_path / "diag_bare"
+    assert main(["diagnose", *map(str, stripped[:-1]), "--holdout", str(stripped[-1]), "--out", str(bare),
+                 "--free", "mu_c", "--max-effects", "0", "--no-check"]) == 0
+    bare_doc = json.loads((bare / "diagnosis.json").read_text())
+    assert bare_doc["channel_scales"]["current_scale_a"] is None
+    for key in ("gap_before", "gap_after"):
+        assert bare_doc[key] == doc[key], key
+    fitted = [ModelParameters.load(d / "augmented_params.json").value("mu_c") for d in (out, bare)]
+    assert fitted[0] == fitted[1] and fitted[0] != ModelParameters.nominal().mu_c
 
 
 @pytest.mark.parametrize("command", ["fit", "diagnose"])
