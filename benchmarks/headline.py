@@ -92,6 +92,12 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
         shrink = (f"; held-out gap when right: cost -{_pct(s['median_cost_reduction_when_right'])}, head "
                   f"-{_pct(s['median_head_shrink_above_floor'])} ({s['right_head_above_floor']} above the nulls' "
                   f"{1000 * s['head_floor_m']:.1f} mm), joints -{_pct(s['median_joint_shrink_above_floor'])}")
+        # ... and of each gap's part above the one our model at the truth leaves on the same run
+        if s.get("right_head_above_truth") is not None:
+            shrink += (f"; of the part above our model's at the truth, closed: head {_pct(s['median_head_closed_above_truth'])} "
+                       f"({s['right_head_closed_70_above_truth']} of {s['right_head_above_truth']} cases >= 70 %), "
+                       f"joints {_pct(s['median_joint_closed_above_truth'])} ({s['right_joints_closed_70_above_truth']} "
+                       f"of {s['right_joints_above_truth']})")
         out.append((f"missing effect named first, {where} (seeds {', '.join(map(str, doc['meta']['seeds']))})",
                     f"{_pct(s['named_first_rate'])} ({', '.join(levels)}); {_pct(s['false_positive_rate'])} "
                     f"false positives on {len(nulls)} nulls{shrink}",

@@ -47,8 +47,8 @@ law that ``cobra fit --contact choose`` keeps on MuJoCo's runs, ``mujoco_fit_res
 results then go to ``..._<law>.{json,md}``.
 
 ``--floors`` diagnoses nothing either: per case and seed it reproduces the runs with our
-simulator at MuJoCo's own values (:func:`sysid.generators.mujoco_recording.twin_counterpart`,
-under ``--contact-law`` with MuJoCo's contact time constant) and the case's effect at its MuJoCo
+simulator at MuJoCo's own values (:func:`sysid.generators.mujoco_recording.counterpart_under`:
+under ``--contact-law``, a soft law at MuJoCo's contact time constant) and the case's effect at its MuJoCo
 value in our library's form (:data:`FLOOR_COUNTERPARTS`), and reports the held-out final head
 error and joint RMSE that leaves: what a diagnosis that named the effect and found every value
 could reach with our model's structure, to read its "after" figures against. Results go to
@@ -83,7 +83,7 @@ from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.gap.metrics import compare_runs
 from sysid.identification.contact_choice import nominal_start
-from sysid.generators.mujoco_recording import record_mujoco, stiff_contact, twin_counterpart, twin_options
+from sysid.generators.mujoco_recording import counterpart_under, record_mujoco, stiff_contact, twin_options
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
@@ -159,9 +159,7 @@ def at_mujoco_values(case: str, truth: ModelParameters, base: TwinOptions, law: 
     """Our parameters at MuJoCo's values under ``law`` (the soft laws at MuJoCo's ``solref``
     time constant) with ``case``'s effect in our terms (:data:`FLOOR_COUNTERPARTS`)."""
     effects, added = FLOOR_COUNTERPARTS[case]
-    params = twin_counterpart(truth)
-    if law != "compliant":
-        params = params.with_values(contact_time_constant=base.solref[0]).with_contact_law(law)
+    params = counterpart_under(truth, base, law)
     params = params.with_values(**{n: params.value(n) + dv for n, dv in added.items()})
     return EffectLibrary().transform(params, effects) if effects else params
 

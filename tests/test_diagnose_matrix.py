@@ -1,6 +1,7 @@
 """The confusion-matrix benchmark's bookkeeping: jobs, rates and the heatmap (no diagnosis run)."""
 from __future__ import annotations
 
+import dataclasses
 import json
 import sys
 from pathlib import Path
@@ -11,7 +12,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, MUJOCO_CONTACTS, MUJOCO_OPTIONS, Job,  # noqa: E402
-                                        finished_rows, job_key, jobs_for, make_runs, near_limit, summary)
+                                        finished_rows, gap_at_truth, job_key, jobs_for, make_runs, near_limit,
+                                        summary, truth_params)
 from benchmarks.effect_signal import ENCODER_FLOOR_RAD, HEAD_FLOOR_M, signal  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from cobra_model.errors import InputError  # noqa: E402
@@ -160,6 +162,60 @@ def test_the_gaps_shrink_is_taken_over_the_cases_above_the_floor_the_nulls_leave
     assert s["median_gap_shrink_when_right"] == pytest.approx(0.8)  # all right names, the floor's too
 
 
+def test_the_share_closed_is_of_the_gap_above_our_model_at_the_truth() -> None:
+    # a 50 mm gap whose own floor is 5 mm, closed to 10 mm: 40 of its 45 mm; a gap already below
+    # its floor is not the effect's; closing below the floor counts as closing all of it
+    truth = {"head_final_truth_m": 0.005, "joint_rmse_truth_rad": 0.0005}
+    rows = [{**_row("sim", "backlash", "backlash", 0.8, head_before=0.05, joints_before=0.0105), **truth},
+            {**_row("sim", "backlash", "backlash", 0.5, head_before=0.004, joints_before=0.0004), **truth},
+            {**_row("sim", "actuator_delay", "actuator_delay", 0.9, head_before=0.02, joints_before=0.003), **truth},
+            {**_row("sim", "actuator_delay", "backlash", 0.9, head_before=0.02, joints_before=0.003), **truth}]
+    s = summary(rows, "sim")
+    assert s["right_head_above_truth"] == 2 and s["right_joints_above_truth"] == 2
+    weak = summary(rows + [{**_row("sim", "backlash", "backlash", 0.2, head_before=0.01, joints_before=0.001),
+                            **truth}], "sim")   # 2 of its 5 mm above the floor closed, 0.2 of 0.5 mrad
+    assert weak["right_head_above_truth"] == 3 and weak["right_head_closed_70_above_truth"] == 2
+    assert weak["right_joints_closed_70_above_truth"] == 2
+    # head: 40/45 and (20 - 2)/(20 - 5) capped at 1; joints: (10.5 - 2.1)/10 and (3 - 0.3)/2.5 capped
+    assert s["median_head_closed_above_truth"] == pytest.approx((40 / 45 + 1) / 2)
+    assert s["median_joint_closed_above_truth"] == pytest.approx((0.84 + 1) / 2)
+    assert s["right_head_closed_70_above_truth"] == 2 and s["right_joints_closed_70_above_truth"] == 2
+    # rows written before the gap at the truth was kept: no figure rather than one from some rows
+    old = summary(rows[:1] + [_row("sim", "backlash", "backlash")], "sim")
+    assert old["right_head_above_truth"] is None and np.isnan(old["median_head_closed_above_truth"])
+
+
+def test_our_model_at_the_truth_reproduces_a_case_to_its_sensors_noise() -> None:
+    """On this simulator's runs the truth is the model that made them: the held-out gap it leaves
+    is the sensors' (encoders' 0.44 mrad, one mocap sample's millimetre); without the hidden
+    backlash the same model misses by centimetres."""
+    model = CobraModel.load()
+    job = Job("sim", "backlash", 0.02, "realistic", 31, 3.0)
+    runs = make_runs(job, model)
+    head, joints = gap_at_truth(job, runs, "compliant", model)
+    assert head < 0.002 and joints < 0.0006
+    head_without, joints_without = gap_at_truth(Job("sim", None, None, "null", 31, 3.0), runs, "compliant", model)
+    assert head_without > 20 * head and joints_without > 20 * joints
+
+
+def test_mujocos_truth_is_its_own_values_under_the_law_fitted_with_the_effect_at_its_options_value() -> None:
+    job = Job("mujoco", "encoder_offset", 0.03, "realistic", 31, 3.0, contact_law="soft_constraint",
+              mujoco_contact="stiff")
+    p = truth_params(job, "soft_constraint")
+    assert p.contact_law == "soft_constraint" and p.contact_time_constant == MUJOCO_CONTACTS["stiff"].solref[0]
+    assert p.encoder_offset == 0.03 and p.mu_c == ERROR["mu_c"] and p.joint_damping == ERROR["joint_damping"]
+    # MuJoCo's capsule pairs: the modules' ends rounded to the module radius
+    assert p.contact_rounding == pytest.approx(0.045)
+    model = CobraModel.load()
+    runs = make_runs(job, model)
+    head, joints = gap_at_truth(job, runs, "soft_constraint", model)
+    # another engine's runs: the joints at the encoders' floor, the head within a centimetre
+    assert joints < 0.0006 and head < 0.01
+    _, joints_without = gap_at_truth(dataclasses.replace(job, effect=None, magnitude=None, level="null"), runs,
+                                     "soft_constraint", model)
+    assert joints_without > 10 * joints
+
+
 def test_summary_only_recomputes_from_the_files_rows_keeping_their_date_and_diagnoses_nothing(
         tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     import benchmarks._results as results
@@ -183,10 +239,18 @@ def test_summary_only_recomputes_from_the_files_rows_keeping_their_date_and_diag
     path.write_text(json.dumps({"meta": {"duration_s": 3.0}, "environment": env, "rows": rows}))
     assert matrix.main(argv) == 0
     doc = json.loads(path.read_text())
-    assert doc["environment"] == env and doc["rows"] == rows and "summarised_utc" in doc["meta"]
+    assert doc["environment"] == env and "summarised_utc" in doc["meta"]
+    # the rows are the file's, each given the gap our model at the truth leaves (written before
+    # it was kept): on this simulator's runs, the sensors' noise
+    truth_keys = {"head_final_truth_m", "joint_rmse_truth_rad"}
+    assert [{k: v for k, v in r.items() if k not in truth_keys} for r in doc["rows"]] == rows
+    assert all(0 < r["head_final_truth_m"] < 0.003 and 0 < r["joint_rmse_truth_rad"] < 0.0006 for r in doc["rows"])
     s = doc["meta"]["summary"][0]
     assert s["head_floor_m"] == pytest.approx(0.001) and s["median_head_shrink_above_floor"] == pytest.approx(0.9)
-    assert "Measured 2026-01-02T03:04:05+00:00" in (tmp_path / "diagnose_matrix.md").read_text()
+    text = (tmp_path / "diagnose_matrix.md").read_text()
+    assert "Measured 2026-01-02T03:04:05+00:00" in text and "held-out runs of the 2 rows written before" in text
+    # a second pass has nothing to add
+    assert matrix.main(argv) == 0 and json.loads(path.read_text())["rows"] == doc["rows"]
 
 
 def test_the_heatmap_is_written_and_checks_its_shape(tmp_path: Path) -> None:

@@ -72,6 +72,18 @@ def twin_counterpart(params: ModelParameters) -> ModelParameters:
                               contact_rounding=design.MODULE_RADIUS_M, k1=params["k1"].max, k2=params["k2"].max)
 
 
+def counterpart_under(params: ModelParameters, options: TwinOptions, law: str) -> ModelParameters:
+    """Our parameters at the values of the twin of ``params`` (:func:`twin_counterpart`) under the
+    contact law ``law``: a soft law at the time constant of ``options``' ``solref`` [s], the
+    compliant law at the stiffest ground of the parameter table. What a model of ours that found
+    every value of MuJoCo's robot holds (add an effect at MuJoCo's value with
+    :meth:`sysid.discrepancy.effects.EffectLibrary.transform`)."""
+    out = twin_counterpart(params)
+    if law != "compliant":
+        out = out.with_values(contact_time_constant=options.solref[0]).with_contact_law(law)
+    return out
+
+
 #: MuJoCo's contact near its rigid limit: ``solref`` time constant [s] and the time step [s] that
 #: resolves it (MuJoCo needs the time constant to be at least two steps).
 STIFF_SOLREF_S, STIFF_TIMESTEP_S = 0.002, 0.00025
