@@ -315,6 +315,8 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   stiffness is free (MuJoCo's diagnoses; CHANGELOG "fortieth stop"): the same.
 #: - ... that grid from the base fit's own starts, not around the candidate's time constant
 #:   (soft-law diagnoses; CHANGELOG "forty-seventh stop"): the same.
+#: - ... and, for an effect that bends parameters (a torque limit), from the candidate with
+#:   them unbent (CHANGELOG "fiftieth stop"): the same, for diagnoses that name a torque limit.
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -378,6 +380,12 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-12-02T04:40", "dd9d5e4", "the refit after naming from the base fit's own grid of grounds (soft law)",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff",
       "mujoco_robustness_soft_constraint")),
+    # the refit after naming an effect that bends parameters (a torque limit) also from the
+    # candidate with them unbent: every diagnosis that names a torque limit may end elsewhere
+    ("2026-12-02T17:03", "b452bed", "the refit after naming a torque limit from the unbent motor too",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
 )
 
 
