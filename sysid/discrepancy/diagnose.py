@@ -734,8 +734,8 @@ def final_refit(candidate: ModelParameters, current: ModelParameters, origin: Mo
     seeds): from the candidate the limit came out at 2.58-2.59 N m with the damping 0.066 N m s/rad
     (0.16 true) and the motor constant 0.0105 N m/A (0.0098), held-out joints 3.4-3.9 mrad and the
     held-out head 14-19 mm where it had been 2-5 mm; from the unbent motor the fit reaches the
-    truth's basin (seed 23: training cost 1.0 against 341, limit 2.51 N m, joints at the
-    encoders' 0.4 mrad floor).
+    truth's basin (seed 23: training cost 2.1 against 171, limit 2.52 N m; held-out head
+    0.2-1.8 mm on the three seeds).
 
     Physical reason: the ground's shape and stiffness give the cost a basin per value range
     (``sysid.identification.contact_choice``: on a stiff ground the head path makes it rough
