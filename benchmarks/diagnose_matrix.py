@@ -186,8 +186,8 @@ def gap_at_truth(job: Job, runs: list, law: str, model: CobraModel) -> tuple[flo
     that engine's on this run's path: nothing that naming an effect can close."""
     params = truth_params(job, law)
     held_out = runs[2]
-    gap = compare_runs(held_out, simulate_like(held_out, params=params, settings=contact_resolved(SimSettings(), params),
-                                               model=model))
+    simulated = simulate_like(held_out, params=params, settings=contact_resolved(SimSettings(), params), model=model)
+    gap = compare_runs(held_out, simulated)
     return gap.head.final, gap.mean_joint_rmse
 
 

@@ -94,10 +94,11 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
                   f"{1000 * s['head_floor_m']:.1f} mm), joints -{_pct(s['median_joint_shrink_above_floor'])}")
         # ... and of each gap's part above the one our model at the truth leaves on the same run
         if s.get("right_head_above_truth") is not None:
-            shrink += (f"; of the part above our model's at the truth, closed: head {_pct(s['median_head_closed_above_truth'])} "
-                       f"({s['right_head_closed_70_above_truth']} of {s['right_head_above_truth']} cases >= 70 %), "
-                       f"joints {_pct(s['median_joint_closed_above_truth'])} ({s['right_joints_closed_70_above_truth']} "
-                       f"of {s['right_joints_above_truth']})")
+            shrink += (f"; of the part above our model's at the truth, closed: head "
+                       f"{_pct(s['median_head_closed_above_truth'])} ({s['right_head_closed_70_above_truth']} of "
+                       f"{s['right_head_above_truth']} cases >= 70 %), joints "
+                       f"{_pct(s['median_joint_closed_above_truth'])} ({s['right_joints_closed_70_above_truth']} of "
+                       f"{s['right_joints_above_truth']})")
         out.append((f"missing effect named first, {where} (seeds {', '.join(map(str, doc['meta']['seeds']))})",
                     f"{_pct(s['named_first_rate'])} ({', '.join(levels)}); {_pct(s['false_positive_rate'])} "
                     f"false positives on {len(nulls)} nulls{shrink}",

@@ -204,11 +204,11 @@ def test_the_refit_with_a_named_effect_also_starts_from_the_current_models_groun
 
 @pytest.mark.slow
 def test_the_refit_with_a_named_limit_also_starts_from_the_unbent_motor():
-    """A 2.5 N m limit named with the motor still bent (the candidate's refit left the damping at
-    0.066 N m s/rad and the motor constant at 0.0105 N m/A; true 0.16 and 0.0098, seed 23 of the
-    confusion matrix's design): refitted from there alone the whole runs' fit stays in the bent
-    basin; from the candidate with the motor put back where the base fit started it reaches the
-    truth's, and that fit is the one kept."""
+    """A 2.5 N m limit named with the motor still bent (as the diagnosis left it where this was
+    found: damping 0.066 N m s/rad and motor constant 0.0105 N m/A, true 0.16 and 0.0098), on
+    seed 23's runs of the confusion matrix's design: refitted from there alone the whole runs'
+    fit stays in the bent basin; from the candidate with the motor put back where the base fit
+    started it reaches the truth's, and that fit is the one kept."""
     import sys
     from pathlib import Path
     import sysid.discrepancy.diagnose as diagnose
