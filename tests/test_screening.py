@@ -230,3 +230,35 @@ def test_the_refit_with_a_named_limit_also_starts_from_the_unbent_motor():
         assert kept.params.value(name) == pytest.approx(value, rel=0.02), name
     assert kept.params.value("joint_damping") == pytest.approx(0.16, rel=0.15)
     assert bent.params.value("joint_damping") < 0.1 and bent.params.value("torque_limit") > 2.57
+
+
+@pytest.mark.slow
+def test_the_refit_with_a_named_limit_also_starts_from_the_base_fits_own_start():
+    """The limit named with the ground's friction bent as well as the motor: the candidate and
+    the diagnosis's channel scales (1 cm ~ 10 mrad) on evaluation seed 31's runs, where this was
+    found (mu_c 0.279 for 0.24). From the candidate, and from it with only the motor put back,
+    the whole runs' refits stay bent (training cost 170 and 136 when written; which basin the
+    motor-only start falls in turns on the fourth digit of the friction, so it is not
+    asserted); from the base fit's own start with the limit's value, as if the limit had been
+    modelled from the beginning, the refit reaches the truth's basin (4.8), and it is kept. On
+    the old starts this test fails."""
+    import sys
+    from pathlib import Path
+    import sysid.discrepancy.diagnose as diagnose
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+    from benchmarks.diagnose_matrix import Job, make_runs
+
+    runs = make_runs(Job("sim", "torque_saturation", 2.5, "realistic", 31, 3.0), CobraModel.load())
+    limit = LIBRARY["torque_saturation"]
+    origin = ModelParameters.nominal().with_frozen(free=FREE)
+    current = origin.with_values(mu_c=0.27145, joint_damping=0.57588, motor_km=0.0064)
+    candidate = LIBRARY.transform(origin.with_values(mu_c=0.27871, joint_damping=0.06771, motor_km=0.01053),
+                                  {"torque_saturation": 2.59182})
+    weights = diagnose.Weights(head_scale_m=0.01, joint_scale_rad=0.01)
+    kept = diagnose.final_refit(candidate, current, origin, runs[:2], weights, diagnose.DiagnoseConfig(), limit)
+    assert kept.cost < 10                                      # 4.8 when written; the bent basins 136-170
+    # the limit, motor constant and friction within 2 % (1.2, 0.7, 0.5 % when written), the
+    # damping within 15 % (12 %); the bent fits' friction is 13-16 % high, their damping 46 % low
+    for name, value in {"torque_limit": 2.5, "motor_km": 0.0098, "mu_c": 0.24}.items():
+        assert kept.params.value(name) == pytest.approx(value, rel=0.02), name
+    assert kept.params.value("joint_damping") == pytest.approx(0.16, rel=0.15)
