@@ -387,6 +387,11 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
       "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+    # that refit also from the base fit's own start with the limit's value (the ground bent too)
+    ("2026-12-02T23:18", "c938aa3", "the refit after naming a torque limit from the base fit's own start too",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
 )
 
 
