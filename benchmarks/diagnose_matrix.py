@@ -9,9 +9,10 @@ or none (a null). Two engines make the data:
 - ``sim``: this project's simulator with the effect added (every library effect);
 - ``mujoco``: the MuJoCo twin (``sysid.generators.mujoco_recording``) with the effect expressed on MuJoCo's
   side (:data:`MUJOCO_OPTIONS`: joint ``frictionloss``, actuator ``forcerange``, commands
-  delayed in a buffer, encoders offset, body-aligned anisotropic contact friction; the ground's
-  parameters are then free too). Backlash and a payload mass are not expressed in the twin and
-  are left out of MuJoCo's matrix.
+  delayed in a buffer, encoders offset, body-aligned anisotropic contact friction, a payload on
+  the head body; the ground's parameters are then free too). Backlash is not expressed in the
+  twin (MuJoCo has no joint play short of a second joint per module) and is left out of MuJoCo's
+  matrix.
 
 Magnitudes: each effect's realistic one (``Effect.realistic``) and one near its detection limit
 (:func:`near_limit`): a quarter of the way from where the effect starts to act to its realistic
@@ -117,7 +118,7 @@ EVAL_SEEDS = (31, 32, 33)
 #: Library effect -> the MuJoCo twin's option that expresses it (same value and unit).
 MUJOCO_OPTIONS = {"joint_coulomb_friction": "frictionloss", "torque_saturation": "forcerange",
                   "actuator_delay": "command_delay", "encoder_offset": "encoder_offset",
-                  "anisotropic_ground_friction": "lateral_friction_ratio"}
+                  "anisotropic_ground_friction": "lateral_friction_ratio", "link_mass_error": "payload"}
 #: How far towards its realistic magnitude a near-limit case hides an effect (:func:`near_limit`).
 NEAR_LIMIT_FRACTION = 0.25
 ENGINES = ("sim", "mujoco")

@@ -83,6 +83,10 @@ class TwinOptions:
             run logs them when sent).
         encoder_offset: every encoder reads the joint angle plus this [rad], and the servo loop
             holds its goal in readings (:func:`sysid.generators.mujoco_recording.record_mujoco`).
+        payload: mass added to the head module [kg] (negative: removed), at the head's centre of
+            mass with its rotational inertia scaled by the new mass over the URDF's, as our
+            model's ``link_mass_error`` changes it (``cobra_model.model.RobotModel.with_link_mass``).
+            The head's mass must stay positive (checked in :func:`build`, which knows it).
         self_collision: with ``contact="cylinder"``, whether the robot's cylinders also collide
             with each other (MuJoCo's default); False leaves ground contacts only, as in our
             simulator (for a like-for-like speed comparison).
@@ -108,6 +112,7 @@ class TwinOptions:
     timestep: float = 1e-3
     command_delay: float = 0.0
     encoder_offset: float = 0.0
+    payload: float = 0.0
     self_collision: bool = True
 
     def __post_init__(self) -> None:
@@ -142,6 +147,8 @@ class TwinOptions:
             raise InputError(f"TwinOptions.command_delay must be in [0, 1) s, got {self.command_delay}")
         if not abs(self.encoder_offset) < 0.5:
             raise InputError(f"TwinOptions.encoder_offset must be within +-0.5 rad, got {self.encoder_offset}")
+        if not np.isfinite(self.payload):
+            raise InputError(f"TwinOptions.payload must be a finite mass [kg], got {self.payload}")
 
 
 def servo_error_limit(options: TwinOptions, p_gain: int = 800) -> float | None:
@@ -161,6 +168,9 @@ def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelP
 
     ``params`` gives the servo gains (``motor_km``, see :func:`servo_stiffness_damping`;
     default nominal); every other physical property comes from the URDF and ``options``.
+
+    Raises:
+        InputError: naming ``TwinOptions.payload`` if it leaves the head no positive mass.
     """
     mujoco = _mujoco()
     spec = mujoco.MjSpec.from_file(str(urdf))
@@ -169,6 +179,13 @@ def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelP
     spec.option.impratio = options.impratio
     root = spec.worldbody.first_body()
     root.add_freejoint()
+    if options.payload:
+        mass = root.mass + options.payload
+        if not mass > 0:
+            raise InputError(f"TwinOptions.payload {options.payload:g} kg leaves the head ({root.name!r}, "
+                             f"{root.mass:g} kg in {urdf}) no positive mass")
+        scale = mass / root.mass  # the URDF gives the inertia as fullinertia, MjSpec keeps both forms
+        root.mass, root.fullinertia, root.inertia = mass, root.fullinertia * scale, root.inertia * scale
     for j in spec.joints:
         if j.type == mujoco.mjtJoint.mjJNT_HINGE:
             j.armature = options.armature

@@ -39,6 +39,9 @@ def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_expre
     mujoco = [j for j in jobs if j.engine == "mujoco"]
     assert len(sim) == 2 * 2 * 2 + 3 and len(mujoco) == 1 * 2 * 2 + 3  # no backlash in MuJoCo's twin
     assert "backlash" not in MUJOCO_OPTIONS
+    # every other library effect is expressed on MuJoCo's side, by an option of the twin
+    assert set(MUJOCO_OPTIONS) == set(EffectLibrary().names) - {"backlash"}
+    assert all(hasattr(MUJOCO_CONTACTS["twin"], option) for option in MUJOCO_OPTIONS.values())
     nulls = [j for j in sim if j.effect is None]
     assert [j.seed for j in nulls] == [31, 32, 1031]  # distinct data for every null
     assert {j.magnitude for j in sim if j.effect == "actuator_delay"} == {0.04, 0.01}

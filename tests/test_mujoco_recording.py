@@ -139,6 +139,23 @@ def test_saturating_servo_cannot_outrun_the_motor(cobra):
     assert np.sqrt(np.mean(late["saturating"] ** 2)) > 1.05 * np.sqrt(np.mean(late["linear"] ** 2))
 
 
+@pytest.mark.parametrize("payload", [0.8, -0.3])
+def test_a_payload_changes_the_head_as_our_link_mass_error_does(cobra, payload):
+    """The twin's head carries the payload as our model's ``link_mass_error`` puts it: the same
+    mass, centre of mass and principal inertias (MuJoCo reorders the principal axes), and the
+    rest of the robot untouched."""
+    base = mujoco_twin.build(cobra.urdf_path, twin_options(PARAMS))
+    mj = mujoco_twin.build(cobra.urdf_path, dataclasses.replace(twin_options(PARAMS), payload=payload))
+    ours = cobra.with_link_mass("head", payload).pin_model.inertias[cobra.body_joint_id("head")]
+    head = mujoco.mj_name2id(mj, mujoco.mjtObj.mjOBJ_BODY, "head")
+    assert mj.body_mass[head] == pytest.approx(ours.mass) == pytest.approx(0.6 + payload)
+    assert np.allclose(mj.body_ipos[head], ours.lever)
+    assert np.allclose(np.sort(mj.body_inertia[head]), np.linalg.eigvalsh(ours.inertia), rtol=1e-9)
+    others = np.arange(mj.nbody) != head
+    assert np.array_equal(mj.body_mass[others], base.body_mass[others])
+    assert mujoco.mj_getTotalmass(mj) == pytest.approx(mujoco.mj_getTotalmass(base) + payload)
+
+
 def test_bad_inputs_name_the_parameter(cobra):
     with pytest.raises(InputError, match="lateral_friction_ratio"):
         mujoco_twin.TwinOptions(lateral_friction_ratio=2.0)        # needs capsule pairs
@@ -146,6 +163,10 @@ def test_bad_inputs_name_the_parameter(cobra):
         mujoco_twin.TwinOptions(contact="mesh")
     with pytest.raises(InputError, match="servo"):
         mujoco_twin.TwinOptions(servo="ideal")
+    with pytest.raises(InputError, match="payload -0.6 kg leaves the head"):
+        mujoco_twin.build(cobra.urdf_path, mujoco_twin.TwinOptions(payload=-0.6))
+    with pytest.raises(InputError, match="payload"):
+        mujoco_twin.TwinOptions(payload=float("nan"))
     with pytest.raises(InputError, match="actuators"):
         record_mujoco(PLAN, mujoco_twin.TwinOptions(actuators=False), np.random.default_rng(0), cobra)
     t = np.arange(5) * 0.002

@@ -14,7 +14,7 @@ friction; the servo gains follow ``motor_km`` through :func:`integrators.mujoco_
 uses body-aligned capsule contact pairs in every case, so that ground-friction anisotropy can be
 added without changing the contact geometry (see ``TwinOptions.contact``). Effects are then
 added with ``dataclasses.replace`` on the options (``frictionloss``, ``armature``/``damping``,
-``forcerange``, ``lateral_friction_ratio``).
+``forcerange``, ``lateral_friction_ratio``, ``command_delay``, ``encoder_offset``, ``payload``).
 """
 from __future__ import annotations
 
@@ -255,5 +255,6 @@ def describe(options: TwinOptions) -> str:
              f"ground mu {options.friction[0]:g}", f"lateral/along friction {options.lateral_friction_ratio:g}",
              f"contact {options.contact}", f"servo {options.servo}", f"cone {options.cone}",
              f"impratio {options.impratio:g}", f"solref {options.solref}", f"solimp {options.solimp}",
-             f"command delay {options.command_delay:g} s", f"encoder offset {options.encoder_offset:g} rad"]
+             f"command delay {options.command_delay:g} s", f"encoder offset {options.encoder_offset:g} rad",
+             f"head payload {options.payload:g} kg"]
     return ", ".join(parts)
