@@ -392,6 +392,11 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
       "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+    # MuJoCo's twin carries a payload on the head: its matrices and signal table hide
+    # link_mass_error too (six effects, fifteen pairs: the pairs' seeds, cycled, moved)
+    ("2026-12-03T20:25", "afdf753", "a payload hidden on MuJoCo's side too",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "effect_signal")),
 )
 
 
