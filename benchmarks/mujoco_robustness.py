@@ -11,6 +11,9 @@ with the same parameter error (``TRUTH``) and one physical effect added in MuJoC
 | armature_damping | joint ``armature`` +0.03 kg m^2, ``damping`` +0.2 N m s/rad | none (parameters) |
 | forcerange | actuator ``forcerange`` 2 N m (peak demand 3.5-4 N m on the pitch joints) | torque_saturation |
 | anisotropic_friction | sideways / along-body ground friction 2 (body-aligned capsule pairs) | anisotropic_ground_friction |
+| command_delay | commands reach the servos 40 ms late (a buffer on the bus) | actuator_delay |
+| encoder_offset | every encoder reads 0.03 rad more than its joint (the loop holds the reading) | encoder_offset |
+| payload | 0.8 kg more on the head body (inertia scaled with its mass) | link_mass_error |
 
 Per case: 9 runs (3 per gait frequency 0.35/0.5/0.65 Hz, ``--duration`` s each, random start),
 the first 6 for training and the last 3 held out; ``diagnose`` starts from the nominal model with
@@ -20,9 +23,9 @@ MuJoCo's contact (soft constraints, a friction cone, capsule ends) is another mo
 and only the fitted ground can stand in for it. Per case the table gives the effect(s) named,
 the structural differences reported instead of a proxy (``sysid.discrepancy.diagnose.choose``), the best
 candidate of round 1, the held-out gap, and for a named effect with a MuJoCo counterpart
-(frictionloss -> joint_coulomb, forcerange -> torque_limit) whether its 95 % interval holds
-MuJoCo's value. Written to ``benchmarks/results/mujoco_robustness.{json,md}``; progress to
-stderr. Seed 3 was used while developing (``DEV_SEEDS``); the default reports seed 11.
+(:data:`COUNTERPARTS`: frictionloss -> joint_coulomb, forcerange -> torque_limit, and the
+delay, offset and payload to their own parameters) whether its 95 % interval holds MuJoCo's
+value. Written to ``benchmarks/results/mujoco_robustness.{json,md}``; progress to stderr. Seed 3 was used while developing (``DEV_SEEDS``); the default reports seed 11.
 
 ``--effect-sizes`` diagnoses nothing: it prints, per case, how much the MuJoCo effect changes
 the runs (each case's runs against the no-effect runs, same starts and noise) beside how much
@@ -90,7 +93,9 @@ TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 DEV_SEEDS = (3,)
 EVAL_SEEDS = (11,)
 #: Library parameter that stands for a MuJoCo option, and the option's value per case.
-COUNTERPARTS = {"frictionloss": ("joint_coulomb", 0.3), "forcerange": ("torque_limit", 2.0)}
+COUNTERPARTS = {"frictionloss": ("joint_coulomb", 0.3), "forcerange": ("torque_limit", 2.0),
+                "command_delay": ("actuator_delay", 0.04), "encoder_offset": ("encoder_offset", 0.03),
+                "payload": ("link_mass_error", 0.8)}
 #: MuJoCo contacts the benchmark runs on (``--contact``).
 CONTACTS = ("default", "stiff")
 #: Per case, MuJoCo's effect in our model's terms at MuJoCo's value: library effects (name ->
@@ -101,6 +106,9 @@ FLOOR_COUNTERPARTS: dict[str, tuple[dict[str, float], dict[str, float]]] = {
     "armature_damping": ({}, {"armature": 0.03, "joint_damping": 0.2}),
     "forcerange": ({"torque_saturation": 2.0}, {}),
     "anisotropic_friction": ({"anisotropic_ground_friction": 2.0}, {}),
+    "command_delay": ({"actuator_delay": 0.04}, {}),
+    "encoder_offset": ({"encoder_offset": 0.03}, {}),
+    "payload": ({"link_mass_error": 0.8}, {}),
 }
 FREE = ["joint_damping", "motor_km", "k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", "friction_cone", "contact_rounding"]
 
@@ -114,6 +122,9 @@ def _cases(base: TwinOptions) -> dict[str, tuple[str, dict[str, Any]]]:
                              {"armature": base.armature + 0.03, "damping": base.damping + 0.2}),
         "forcerange": ("forcerange 2 N m", {"forcerange": 2.0}),
         "anisotropic_friction": ("lateral/along ground friction 2", {"lateral_friction_ratio": 2.0}),
+        "command_delay": ("commands delayed 0.04 s", {"command_delay": 0.04}),
+        "encoder_offset": ("encoder offset 0.03 rad", {"encoder_offset": 0.03}),
+        "payload": ("head payload 0.8 kg", {"payload": 0.8}),
     }
 
 
