@@ -397,6 +397,10 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-12-03T20:25", "afdf753", "a payload hidden on MuJoCo's side too",
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff", "effect_signal")),
+    # MuJoCo's robustness cases add a command delay, an encoder offset and a payload
+    ("2026-12-03T20:28", "e752a5d", "the delay, offset and payload cases",
+     ("mujoco_robustness", "mujoco_robustness_current", "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff",
+      "mujoco_robustness_stiff_current")),
 )
 
 
