@@ -25,7 +25,8 @@ the structural differences reported instead of a proxy (``sysid.discrepancy.diag
 candidate of round 1, the held-out gap, and for a named effect with a MuJoCo counterpart
 (:data:`COUNTERPARTS`: frictionloss -> joint_coulomb, forcerange -> torque_limit, and the
 delay, offset and payload to their own parameters) whether its 95 % interval holds MuJoCo's
-value. Written to ``benchmarks/results/mujoco_robustness.{json,md}``; progress to stderr. Seed 3 was used while developing (``DEV_SEEDS``); the default reports seed 11.
+value. Written to ``benchmarks/results/mujoco_robustness.{json,md}``; progress to stderr.
+Seed 3 was used while developing (``DEV_SEEDS``); the default reports seed 11.
 
 ``--effect-sizes`` diagnoses nothing: it prints, per case, how much the MuJoCo effect changes
 the runs (each case's runs against the no-effect runs, same starts and noise) beside how much
