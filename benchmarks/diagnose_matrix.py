@@ -8,11 +8,11 @@ or none (a null). Two engines make the data:
 
 - ``sim``: this project's simulator with the effect added (every library effect);
 - ``mujoco``: the MuJoCo twin (``sysid.generators.mujoco_recording``) with the effect expressed on MuJoCo's
-  side (:data:`MUJOCO_OPTIONS`: joint ``frictionloss``, actuator ``forcerange``, commands
-  delayed in a buffer, encoders offset, body-aligned anisotropic contact friction, a payload on
-  the head body; the ground's parameters are then free too). Backlash is not expressed in the
-  twin (MuJoCo has no joint play short of a second joint per module) and is left out of MuJoCo's
-  matrix.
+  side (``sysid.generators.mujoco_recording.EFFECT_OPTIONS``: joint ``frictionloss``, actuator
+  ``forcerange``, commands delayed in a buffer, encoders offset, body-aligned anisotropic contact
+  friction, a payload on the head body; the ground's parameters are then free too). Backlash is
+  not expressed in the twin (MuJoCo has no joint play short of a second joint per module) and is
+  left out of MuJoCo's matrix.
 
 Magnitudes: each effect's realistic one (``Effect.realistic``) and one near its detection limit
 (:func:`near_limit`): a quarter of the way from where the effect starts to act to its realistic
@@ -101,8 +101,9 @@ from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.identification.contact_choice import nominal_start  # noqa: E402
 from sysid.identification.executor import make_executor  # noqa: E402
 from sysid.gap.metrics import compare_runs  # noqa: E402
-from sysid.generators.mujoco_recording import (contact_configurations, counterpart_under, describe,  # noqa: E402
-                                               record_mujoco, twin_options)
+from sysid.generators.mujoco_recording import (EFFECT_OPTIONS, contact_configurations,  # noqa: E402
+                                               counterpart_under, describe, record_mujoco, twin_options,
+                                               with_effects)
 
 ERROR = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 FREE_SIM = ["mu_c", "joint_damping", "motor_km"]
@@ -115,10 +116,6 @@ FREE_MUJOCO = FREE_SIM + ["mu_s", "k2", "friction_cone", "contact_rounding"]
 #: :func:`near_limit` measures the torque demand.
 DEV_SEEDS = (21, 22, 23, 24, 25, 26, 27, 28, 29, 30, *range(50, 62))
 EVAL_SEEDS = (31, 32, 33)
-#: Library effect -> the MuJoCo twin's option that expresses it (same value and unit).
-MUJOCO_OPTIONS = {"joint_coulomb_friction": "frictionloss", "torque_saturation": "forcerange",
-                  "actuator_delay": "command_delay", "encoder_offset": "encoder_offset",
-                  "anisotropic_ground_friction": "lateral_friction_ratio", "link_mass_error": "payload"}
 #: How far towards its realistic magnitude a near-limit case hides an effect (:func:`near_limit`).
 NEAR_LIMIT_FRACTION = 0.25
 ENGINES = ("sim", "mujoco")
@@ -164,8 +161,7 @@ def make_runs(job: Job, model: CobraModel) -> list:
     if job.engine == "sim":
         sim = Simulator(model, truth_params(job, "compliant"))
         return [record(sim, p, rng, model, log_current=job.current) for p in plans]
-    options = dataclasses.replace(MUJOCO_CONTACTS[job.mujoco_contact],
-                                  **{MUJOCO_OPTIONS[n]: v for n, v in job.hidden.items()})
+    options = with_effects(MUJOCO_CONTACTS[job.mujoco_contact], job.hidden)
     return [record_mujoco(p, options, rng, model, truth, log_current=job.current) for p in plans]
 
 
@@ -174,7 +170,7 @@ def truth_params(job: Job, law: str) -> ModelParameters:
     the parameter error ``ERROR`` and the hidden effects at their values; on MuJoCo's runs at
     MuJoCo's own values (:func:`sysid.generators.mujoco_recording.counterpart_under`, its
     contact configuration's time constant), each effect at its option's value (the same value
-    and unit, :data:`MUJOCO_OPTIONS`)."""
+    and unit, ``sysid.generators.mujoco_recording.EFFECT_OPTIONS``)."""
     truth = ModelParameters.nominal().with_values(**ERROR)
     if job.engine == "mujoco":
         truth = counterpart_under(truth, MUJOCO_CONTACTS[job.mujoco_contact], law)
@@ -352,7 +348,7 @@ def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: l
     library = EffectLibrary()
     out = []
     for engine in engines:
-        mine = [e for e in effects if engine == "sim" or e in MUJOCO_OPTIONS]
+        mine = [e for e in effects if engine == "sim" or e in EFFECT_OPTIONS]
         law = mujoco_law if engine == "mujoco" else "compliant"
         job = functools.partial(Job, duration_s=duration_s, contact_law=law, laws=laws if law == "choose" else (),
                                 mujoco_contact=mujoco_contact if engine == "mujoco" else None, current=current)

@@ -34,12 +34,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import write_results  # noqa: E402
 from benchmarks._args import number_list  # noqa: E402
-from benchmarks.diagnose_matrix import ENGINES, EVAL_SEEDS, MUJOCO_OPTIONS, Job, make_runs, near_limit  # noqa: E402
+from benchmarks.diagnose_matrix import ENGINES, EVAL_SEEDS, Job, make_runs, near_limit  # noqa: E402
 from cobra_model import CobraModel  # noqa: E402
 from cobra_model.run import Run  # noqa: E402
 from sysid.identification.objective import SENSOR_NOISE  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.generators.dataset import MOCAP_NOISE_M  # noqa: E402
+from sysid.generators.mujoco_recording import EFFECT_OPTIONS  # noqa: E402
 
 #: RMS of the encoders' quantisation error [rad]: one count, uniformly distributed.
 ENCODER_FLOOR_RAD = SENSOR_NOISE["joints"]
@@ -70,7 +71,7 @@ def main(argv: list[str] | None = None) -> None:
     model, library = CobraModel.load(), EffectLibrary()
     rows = []
     for engine in engines:
-        effects = [e for e in library.names if engine == "sim" or e in MUJOCO_OPTIONS]
+        effects = [e for e in library.names if engine == "sim" or e in EFFECT_OPTIONS]
         for seed in seeds:
             base = make_runs(Job(engine, None, None, "null", seed, DURATION_S), model)
             for effect in effects:

@@ -22,10 +22,10 @@ parameter, the ground's shape (``friction_cone``, ``contact_rounding``) included
 MuJoCo's contact (soft constraints, a friction cone, capsule ends) is another model than ours
 and only the fitted ground can stand in for it. Per case the table gives the effect(s) named,
 the structural differences reported instead of a proxy (``sysid.discrepancy.diagnose.choose``), the best
-candidate of round 1, the held-out gap, and for a named effect with a MuJoCo counterpart
-(:data:`COUNTERPARTS`: frictionloss -> joint_coulomb, forcerange -> torque_limit, and the
-delay, offset and payload to their own parameters) whether its 95 % interval holds MuJoCo's
-value. Written to ``benchmarks/results/mujoco_robustness.{json,md}``; progress to stderr.
+candidate of round 1, the held-out gap, and, when the effect MuJoCo added is named, whether
+the 95 % interval of its parameter holds MuJoCo's value (:meth:`Case.counterparts`:
+frictionloss -> joint_coulomb, forcerange -> torque_limit, and the anisotropy, delay, offset and
+payload to their own parameters). Written to ``benchmarks/results/mujoco_robustness.{json,md}``; progress to stderr.
 Seed 3 was used while developing (``DEV_SEEDS``); the default reports seed 11.
 
 ``--effect-sizes`` diagnoses nothing: it prints, per case, how much the MuJoCo effect changes
@@ -53,7 +53,7 @@ results then go to ``..._<law>.{json,md}``.
 ``--floors`` diagnoses nothing either: per case and seed it reproduces the runs with our
 simulator at MuJoCo's own values (:func:`sysid.generators.mujoco_recording.counterpart_under`:
 under ``--contact-law``, a soft law at MuJoCo's contact time constant) and the case's effect at its MuJoCo
-value in our library's form (:data:`FLOOR_COUNTERPARTS`), and reports the held-out final head
+value in our library's form (:class:`Case`), and reports the held-out final head
 error and joint RMSE that leaves: what a diagnosis that named the effect and found every value
 could reach with our model's structure, to read its "after" figures against. Results go to
 ``..._floors.{json,md}``.
@@ -68,7 +68,7 @@ import argparse
 import dataclasses
 import sys
 import time
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
@@ -87,46 +87,61 @@ from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.gap.metrics import compare_runs
 from sysid.identification.contact_choice import nominal_start
-from sysid.generators.mujoco_recording import counterpart_under, record_mujoco, stiff_contact, twin_options
+from sysid.generators.mujoco_recording import (counterpart_under, record_mujoco, stiff_contact, twin_options,
+                                               with_effects)
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
 TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 DEV_SEEDS = (3,)
 EVAL_SEEDS = (11,)
-#: Library parameter that stands for a MuJoCo option, and the option's value per case.
-COUNTERPARTS = {"frictionloss": ("joint_coulomb", 0.3), "forcerange": ("torque_limit", 2.0),
-                "command_delay": ("actuator_delay", 0.04), "encoder_offset": ("encoder_offset", 0.03),
-                "payload": ("link_mass_error", 0.8)}
-#: MuJoCo contacts the benchmark runs on (``--contact``).
-CONTACTS = ("default", "stiff")
-#: Per case, MuJoCo's effect in our model's terms at MuJoCo's value: library effects (name ->
-#: value) and parameter changes (name -> amount added), for ``--floors``.
-FLOOR_COUNTERPARTS: dict[str, tuple[dict[str, float], dict[str, float]]] = {
-    "none": ({}, {}),
-    "frictionloss": ({"joint_coulomb_friction": 0.3}, {}),
-    "armature_damping": ({}, {"armature": 0.03, "joint_damping": 0.2}),
-    "forcerange": ({"torque_saturation": 2.0}, {}),
-    "anisotropic_friction": ({"anisotropic_ground_friction": 2.0}, {}),
-    "command_delay": ({"actuator_delay": 0.04}, {}),
-    "encoder_offset": ({"encoder_offset": 0.03}, {}),
-    "payload": ({"link_mass_error": 0.8}, {}),
-}
+#: MuJoCo's contacts the benchmark runs on (``--contact``): what each makes of the twin's options.
+CONTACTS: dict[str, Callable[[TwinOptions], TwinOptions]] = {"default": lambda options: options,
+                                                             "stiff": stiff_contact}
 FREE = ["joint_damping", "motor_km", "k1", "k2", "mu_c", "mu_s", "mu_v", "v_s", "friction_cone", "contact_rounding"]
 
 
-def _cases(base: TwinOptions) -> dict[str, tuple[str, dict[str, Any]]]:
-    """Case name -> (label, TwinOptions fields to change)."""
-    return {
-        "none": ("none", {}),
-        "frictionloss": ("frictionloss 0.3 N m", {"frictionloss": 0.3}),
-        "armature_damping": ("armature +0.03 kg m^2, damping +0.2 N m s/rad",
-                             {"armature": base.armature + 0.03, "damping": base.damping + 0.2}),
-        "forcerange": ("forcerange 2 N m", {"forcerange": 2.0}),
-        "anisotropic_friction": ("lateral/along ground friction 2", {"lateral_friction_ratio": 2.0}),
-        "command_delay": ("commands delayed 0.04 s", {"command_delay": 0.04}),
-        "encoder_offset": ("encoder offset 0.03 rad", {"encoder_offset": 0.03}),
-        "payload": ("head payload 0.8 kg", {"payload": 0.8}),
-    }
+@dataclasses.dataclass(frozen=True)
+class Case:
+    """What one case adds to the robot MuJoCo runs, in our model's terms.
+
+    Attributes:
+        label: the table's name for it.
+        effects: effects of our library (name -> value in its parameter's unit), added on
+            MuJoCo's side by their twin options at the same value
+            (:data:`sysid.generators.mujoco_recording.EFFECT_OPTIONS`).
+        raised: parameters of ours (name -> amount added, their unit) that the twin takes from
+            the robot (:func:`sysid.generators.mujoco_recording.twin_options`).
+    """
+    label: str
+    effects: dict[str, float] = dataclasses.field(default_factory=dict)
+    raised: dict[str, float] = dataclasses.field(default_factory=dict)
+
+    def robot(self, truth: ModelParameters) -> ModelParameters:
+        """``truth`` with the raised parameters (the effects are not parameters of the twin's robot)."""
+        return truth.with_values(**{n: truth.value(n) + dv for n, dv in self.raised.items()})
+
+    def twin(self, truth: ModelParameters, contact: Callable[[TwinOptions], TwinOptions]) -> TwinOptions:
+        """MuJoCo's twin of the robot ``truth`` with this case, on the contact ``contact`` makes of the twin's."""
+        return with_effects(contact(twin_options(self.robot(truth))), self.effects)
+
+    def counterparts(self) -> dict[str, float]:
+        """Parameter of ours -> MuJoCo's value, for each effect (the effect's own parameter)."""
+        library = EffectLibrary()
+        return {library[name].parameter.name: value for name, value in self.effects.items()}
+
+
+#: The cases, one MuJoCo effect each (see the module doc).
+CASES = {
+    "none": Case("none"),
+    "frictionloss": Case("frictionloss 0.3 N m", {"joint_coulomb_friction": 0.3}),
+    "armature_damping": Case("armature +0.03 kg m^2, damping +0.2 N m s/rad",
+                             raised={"armature": 0.03, "joint_damping": 0.2}),
+    "forcerange": Case("forcerange 2 N m", {"torque_saturation": 2.0}),
+    "anisotropic_friction": Case("lateral/along ground friction 2", {"anisotropic_ground_friction": 2.0}),
+    "command_delay": Case("commands delayed 0.04 s", {"actuator_delay": 0.04}),
+    "encoder_offset": Case("encoder offset 0.03 rad", {"encoder_offset": 0.03}),
+    "payload": Case("head payload 0.8 kg", {"link_mass_error": 0.8}),
+}
 
 
 def make_data(options: TwinOptions, truth: ModelParameters, duration_s: float, model: CobraModel,
@@ -150,7 +165,7 @@ def differences(a: list[Run], b: list[Run]) -> tuple[float, float]:
     return float(np.mean([g.mean_joint_rmse for g in gaps])), float(np.mean([g.head.final for g in gaps]))
 
 
-def effect_sizes(chosen: list[str], cases: dict[str, tuple[str, dict[str, Any]]], base: TwinOptions,
+def effect_sizes(chosen: list[str], base: TwinOptions, contact: Callable[[TwinOptions], TwinOptions],
                  truth: ModelParameters, duration_s: float, model: CobraModel) -> None:
     """Print each case's effect size beside our simulator's difference from MuJoCo (see the module doc)."""
     progress = lambda msg: print(f"[sizes] {msg}", file=sys.stderr, flush=True)  # noqa: E731
@@ -160,38 +175,35 @@ def effect_sizes(chosen: list[str], cases: dict[str, tuple[str, dict[str, Any]]]
           "without it: joint RMSE [rad] | ... final head [m] |")
     print("|---|---:|---:|---:|---:|", flush=True)
     for case in chosen:
-        label, changes = cases[case]
-        runs = plain if not changes else sum(make_data(dataclasses.replace(base, **changes), truth, duration_s,
-                                                       model, progress), [])
+        options = CASES[case].twin(truth, contact)
+        runs = plain if options == base else sum(make_data(options, truth, duration_s, model, progress), [])
         q, head = differences(runs, plain)
-        print(f"| {label} | {q:.4f} | {head:.4f} | {ours[0]:.4f} | {ours[1]:.4f} |", flush=True)
+        print(f"| {CASES[case].label} | {q:.4f} | {head:.4f} | {ours[0]:.4f} | {ours[1]:.4f} |", flush=True)
 
 
 def at_mujoco_values(case: str, truth: ModelParameters, base: TwinOptions, law: str) -> ModelParameters:
     """Our parameters at MuJoCo's values under ``law`` (the soft laws at MuJoCo's ``solref``
-    time constant) with ``case``'s effect in our terms (:data:`FLOOR_COUNTERPARTS`)."""
-    effects, added = FLOOR_COUNTERPARTS[case]
-    params = counterpart_under(truth, base, law)
-    params = params.with_values(**{n: params.value(n) + dv for n, dv in added.items()})
-    return EffectLibrary().transform(params, effects) if effects else params
+    time constant) with ``case``'s effect in our terms (:class:`Case`)."""
+    c = CASES[case]
+    params = c.robot(counterpart_under(truth, base, law))
+    return EffectLibrary().transform(params, c.effects) if c.effects else params
 
 
-def floors(chosen: list[str], cases: dict[str, tuple[str, dict[str, Any]]], base: TwinOptions,
+def floors(chosen: list[str], base: TwinOptions, contact: Callable[[TwinOptions], TwinOptions],
            truth: ModelParameters, args: argparse.Namespace, seeds: list[int], model: CobraModel) -> list[dict]:
     """Per case and seed: the gap our simulator leaves at MuJoCo's values (see the module doc),
     on the held-out and the training runs, each run's and their means (the diagnosis's measure)."""
     rows = []
     for seed in seeds:
         for case in chosen:
-            label, changes = cases[case]
             progress = lambda msg, case=case, seed=seed: print(  # noqa: E731
                 f"[floors {case} seed {seed}] {msg}", file=sys.stderr, flush=True)
-            train, hold = make_data(dataclasses.replace(base, **changes), truth, args.duration, model, progress,
+            train, hold = make_data(CASES[case].twin(truth, contact), truth, args.duration, model, progress,
                                     seed=seed)
             params = at_mujoco_values(case, truth, base, args.contact_law)
             settings = contact_resolved(SimSettings(), params)
             progress(f"reproducing {len(train) + len(hold)} runs at MuJoCo's values")
-            row = {"case": case, "label": label, "seed": seed, "dt_s": settings.dt}
+            row = {"case": case, "label": CASES[case].label, "seed": seed, "dt_s": settings.dt}
             for part, runs in (("held_out", hold), ("train", train)):
                 gaps = [compare_runs(r, simulate_like(r, params=params, settings=settings, model=model)) for r in runs]
                 row[f"{part}_head_final_m"] = [g.head.final for g in gaps]
@@ -217,15 +229,14 @@ def floors_markdown(rows: list[dict], law: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     truth = ModelParameters.nominal().with_values(**TRUTH)
-    cases = _cases(twin_options(truth))
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cases", default=",".join(cases),
-                        help=f"comma-separated subset of {', '.join(cases)} (default: all)")
+    parser.add_argument("--cases", default=",".join(CASES),
+                        help=f"comma-separated subset of {', '.join(CASES)} (default: all)")
     parser.add_argument("--duration", type=float, default=6.0, help="run length [s] (default 6)")
     parser.add_argument("--seeds", default=",".join(map(str, EVAL_SEEDS)),
                         help=f"data seeds (default {','.join(map(str, EVAL_SEEDS))}; {DEV_SEEDS} was used "
                              "while developing)")
-    parser.add_argument("--contact", choices=CONTACTS, default="default",
+    parser.add_argument("--contact", choices=list(CONTACTS), default="default",
                         help="MuJoCo's contact: its default soft one (solref 20 ms; results mujoco_robustness.*) "
                              "or near rigid (2 ms, sysid.generators.mujoco_recording.stiff_contact; mujoco_robustness_stiff.*)")
     parser.add_argument("--contact-law", choices=CONTACT_LAWS, default="compliant",
@@ -241,23 +252,24 @@ def main(argv: list[str] | None = None) -> int:
                              "(results ..._floors.*); no diagnosis")
     args = parser.parse_args(argv)
     chosen = [c.strip() for c in args.cases.split(",") if c.strip()]
-    unknown = [c for c in chosen if c not in cases]
+    unknown = [c for c in chosen if c not in CASES]
     if unknown or not chosen:
-        parser.error(f"--cases: unknown case(s) {unknown or chosen}; choose from {', '.join(cases)}")
+        parser.error(f"--cases: unknown case(s) {unknown or chosen}; choose from {', '.join(CASES)}")
     if not args.duration > 1.0:
         parser.error(f"--duration must exceed the gait's 1 s smooth start, got {args.duration} s")
     seeds = number_list(parser, "--seeds", args.seeds)
     if any(x in DEV_SEEDS for x in seeds):
         print(f"note: seed(s) {sorted(set(seeds) & set(DEV_SEEDS))} were used while developing", file=sys.stderr)
-    base = twin_options(truth) if args.contact == "default" else stiff_contact(twin_options(truth))
+    contact = CONTACTS[args.contact]
+    base = CASES["none"].twin(truth, contact)
     name = ("mujoco_robustness" if args.contact == "default" else "mujoco_robustness_stiff") \
         + ("" if args.contact_law == "compliant" else f"_{args.contact_law}") + ("_current" if args.current else "")
     model = CobraModel.load()
     if args.effect_sizes:
-        effect_sizes(chosen, cases, base, truth, args.duration, model)
+        effect_sizes(chosen, base, contact, truth, args.duration, model)
         return 0
     if args.floors:
-        rows = floors(chosen, cases, base, truth, args, seeds, model)
+        rows = floors(chosen, base, contact, truth, args, seeds, model)
         write_results(name + "_floors", rows, meta(args, seeds, chosen, base), floors_markdown(rows, args.contact_law))
         print(floors_markdown(rows, args.contact_law))
         return 0
@@ -265,25 +277,24 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     for seed in seeds:
         for case in chosen:
-            label, changes = cases[case]
             t_case = time.perf_counter()
             progress = lambda msg, case=case, t_case=t_case, seed=seed: print(  # noqa: E731
                 f"[{case} seed {seed} {time.perf_counter() - t_case:5.0f} s] {msg}", file=sys.stderr, flush=True)
-            train, hold = make_data(dataclasses.replace(base, **changes), truth, args.duration, model, progress,
+            train, hold = make_data(CASES[case].twin(truth, contact), truth, args.duration, model, progress,
                                     seed=seed, log_current=args.current)
             t0 = time.perf_counter()
             d = diagnose(train, hold, params=start, config=DiagnoseConfig(max_effects=2), progress=progress)
-            rows.append(row(case, label, seed, d, time.perf_counter() - t0))
+            rows.append(row(case, seed, d, time.perf_counter() - t0))
             write_results(name, rows, meta(args, seeds, chosen, base), markdown(rows))
     print(markdown(rows))
     return 0
 
 
-def row(case: str, label: str, seed: int, d: Diagnosis, wall_s: float) -> dict:
+def row(case: str, seed: int, d: Diagnosis, wall_s: float) -> dict:
     """One table row of a diagnosis (see the module docstring); ``effects`` holds every named effect
     as in ``diagnosis.json`` (fitted value, 95 % interval, evidence), ``round1`` the best three
     candidates of round 1."""
-    out = {"case": case, "label": label, "seed": seed, "named": [e.name for e in d.effects],
+    out = {"case": case, "label": CASES[case].label, "seed": seed, "named": [e.name for e in d.effects],
            "effects": [e.to_json() for e in d.effects], "structural": [s.to_json() for s in d.structural],
            "verdict": d.verdict, "wall_s": wall_s,
            "head_final_before_m": d.gap_before.head_final_error_m,
@@ -292,13 +303,13 @@ def row(case: str, label: str, seed: int, d: Diagnosis, wall_s: float) -> dict:
            "joint_rmse_after_rad": d.gap_after.joint_rmse_rad,
            "round1": [c.to_json() for c in d.rounds[0][:3]] if d.rounds else [],
            "counterpart": None}
-    if case in COUNTERPARTS:
-        pname, true = COUNTERPARTS[case]
-        for e in d.effects:
-            if e.parameter == pname:
-                lo, hi = e.ci95 or (np.nan, np.nan)
-                out["counterpart"] = {"parameter": pname, "mujoco": true, "value": e.value, "ci95": [lo, hi],
-                                      "holds": bool(lo <= true <= hi)}
+    mujoco_values = CASES[case].counterparts()
+    for e in d.effects:
+        if e.parameter in mujoco_values:
+            true = mujoco_values[e.parameter]
+            lo, hi = e.ci95 or (np.nan, np.nan)
+            out["counterpart"] = {"parameter": e.parameter, "mujoco": true, "value": e.value, "ci95": [lo, hi],
+                                  "holds": bool(lo <= true <= hi)}
     return out
 
 

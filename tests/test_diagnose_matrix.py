@@ -11,7 +11,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, MUJOCO_CONTACTS, MUJOCO_OPTIONS, Job,  # noqa: E402
+from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, MUJOCO_CONTACTS, Job,  # noqa: E402
                                         finished_rows, gap_at_truth, job_key, jobs_for, make_runs, near_limit,
                                         summary, truth_params)
 from benchmarks.effect_signal import ENCODER_FLOOR_RAD, HEAD_FLOOR_M, signal  # noqa: E402
@@ -21,6 +21,7 @@ from cobra_model.parameters import CONTACT_LAWS  # noqa: E402
 from sysid.discrepancy.diagnose import torque_demand  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.gap.plots import plot_confusion  # noqa: E402
+from sysid.generators.mujoco_recording import EFFECT_OPTIONS  # noqa: E402
 
 
 def _row(engine: str, effect: str | None, named: str | None, shrink: float = 0.9, wall: float = 40.0,
@@ -38,10 +39,10 @@ def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_expre
     sim = [j for j in jobs if j.engine == "sim"]
     mujoco = [j for j in jobs if j.engine == "mujoco"]
     assert len(sim) == 2 * 2 * 2 + 3 and len(mujoco) == 1 * 2 * 2 + 3  # no backlash in MuJoCo's twin
-    assert "backlash" not in MUJOCO_OPTIONS
+    assert "backlash" not in EFFECT_OPTIONS
     # every other library effect is expressed on MuJoCo's side, by an option of the twin
-    assert set(MUJOCO_OPTIONS) == set(EffectLibrary().names) - {"backlash"}
-    assert all(hasattr(MUJOCO_CONTACTS["twin"], option) for option in MUJOCO_OPTIONS.values())
+    assert set(EFFECT_OPTIONS) == set(EffectLibrary().names) - {"backlash"}
+    assert all(hasattr(MUJOCO_CONTACTS["twin"], option) for option in EFFECT_OPTIONS.values())
     nulls = [j for j in sim if j.effect is None]
     assert [j.seed for j in nulls] == [31, 32, 1031]  # distinct data for every null
     assert {j.magnitude for j in sim if j.effect == "actuator_delay"} == {0.04, 0.01}

@@ -14,7 +14,8 @@ from integrators import mujoco_twin
 from integrators.simulator import Simulator
 from cobra_model.servo import AMP_PER_CURRENT_UNIT, CURRENT_NOISE_A, PULSES_PER_REV, SERVO_GEAR_RATIO
 from sysid.generators.dataset import DATA_DIR, JOINT_RATE_HZ, RunPlan, load_manifest, measure
-from sysid.generators.mujoco_recording import record_mujoco, twin_options
+from sysid.discrepancy.effects import EffectLibrary
+from sysid.generators.mujoco_recording import EFFECT_OPTIONS, record_mujoco, twin_options, with_effects
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -154,6 +155,23 @@ def test_a_payload_changes_the_head_as_our_link_mass_error_does(cobra, payload):
     others = np.arange(mj.nbody) != head
     assert np.array_equal(mj.body_mass[others], base.body_mass[others])
     assert mujoco.mj_getTotalmass(mj) == pytest.approx(mujoco.mj_getTotalmass(base) + payload)
+
+
+def test_each_library_effect_but_backlash_is_one_twin_option_at_the_same_value():
+    """``with_effects`` sets exactly the effect's option at the effect's realistic magnitude and
+    leaves every other option; backlash, which the twin cannot express, is refused by name."""
+    library = EffectLibrary()
+    base = twin_options(PARAMS)
+    assert set(EFFECT_OPTIONS) == set(library.names) - {"backlash"}
+    for name, option in EFFECT_OPTIONS.items():
+        value = library[name].realistic
+        changed = with_effects(base, {name: value})
+        assert getattr(changed, option) == value
+        assert dataclasses.replace(changed, **{option: getattr(base, option)}) == base
+    both = with_effects(base, {"actuator_delay": 0.04, "link_mass_error": 0.8})
+    assert (both.command_delay, both.payload) == (0.04, 0.8)
+    with pytest.raises(InputError, match="cannot express the effect.s. backlash; it expresses joint_coulomb"):
+        with_effects(base, {"backlash": 0.02, "encoder_offset": 0.03})
 
 
 def test_bad_inputs_name_the_parameter(cobra):

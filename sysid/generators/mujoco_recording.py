@@ -12,14 +12,14 @@ encoders, 50 Hz joint log with jitter, mocap noise and dropouts, tracked bodies)
 :func:`twin_options` maps our parameters onto the twin (armature, joint damping, Coulomb ground
 friction; the servo gains follow ``motor_km`` through :func:`integrators.mujoco_twin.build`) and
 uses body-aligned capsule contact pairs in every case, so that ground-friction anisotropy can be
-added without changing the contact geometry (see ``TwinOptions.contact``). Effects are then
-added with ``dataclasses.replace`` on the options (``frictionloss``, ``armature``/``damping``,
-``forcerange``, ``lateral_friction_ratio``, ``command_delay``, ``encoder_offset``, ``payload``).
+added without changing the contact geometry (see ``TwinOptions.contact``). The effects of our
+library are then added on MuJoCo's side by :func:`with_effects` (one option of the twin each,
+:data:`EFFECT_OPTIONS`); other changes by ``dataclasses.replace`` on the options.
 """
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING, Callable
+from typing import TYPE_CHECKING, Callable, Mapping
 
 import numpy as np
 
@@ -59,6 +59,31 @@ def twin_options(params: ModelParameters) -> TwinOptions:
     """
     return TwinOptions(armature=params.armature, damping=params.joint_damping,
                        friction=(params.mu_c, 0.005, 0.0001), contact="capsule_pairs")
+
+
+#: Effect of our library (:class:`sysid.discrepancy.effects.EffectLibrary`) -> the twin's option
+#: (:class:`integrators.mujoco_twin.TwinOptions` field) that adds it on MuJoCo's side, at the same
+#: value in the same unit as the effect's parameter: joint ``frictionloss`` [N m], actuator
+#: ``forcerange`` [N m], commands delayed in a buffer [s], encoders offset [rad], the ratio of
+#: sideways to along-body ground friction of the body-aligned contact pairs, a payload on the
+#: head body [kg]. Backlash has none: MuJoCo has no joint play short of a second joint per module.
+EFFECT_OPTIONS = {"joint_coulomb_friction": "frictionloss", "torque_saturation": "forcerange",
+                  "actuator_delay": "command_delay", "encoder_offset": "encoder_offset",
+                  "anisotropic_ground_friction": "lateral_friction_ratio", "link_mass_error": "payload"}
+
+
+def with_effects(options: TwinOptions, effects: Mapping[str, float]) -> TwinOptions:
+    """``options`` with each effect of ``effects`` (library name -> value in its parameter's unit)
+    added on MuJoCo's side through its option (:data:`EFFECT_OPTIONS`).
+
+    Raises:
+        InputError: an effect the twin cannot express, with the ones it can.
+    """
+    unknown = sorted(set(effects) - set(EFFECT_OPTIONS))
+    if unknown:
+        raise InputError(f"MuJoCo's twin cannot express the effect(s) {', '.join(unknown)}; "
+                         f"it expresses {', '.join(EFFECT_OPTIONS)}")
+    return dataclasses.replace(options, **{EFFECT_OPTIONS[name]: value for name, value in effects.items()})
 
 
 def twin_counterpart(params: ModelParameters) -> ModelParameters:
