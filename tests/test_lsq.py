@@ -165,3 +165,32 @@ def test_the_trust_region_starts_small_and_grows_where_the_model_predicts_well(r
     # from 0.1 of the range, doubled after each step the model predicted; whole range: one step
     assert steps[:len(first_steps)] == pytest.approx(first_steps, rel=1e-3)
     assert lm.z == pytest.approx(z0 + 0.36, abs=1e-3)
+
+
+def test_a_probe_that_diverges_is_taken_on_the_stable_side_or_leaves_its_column_zero():
+    """The Jacobian's probes: a diverged one (NaN residuals, ``divergence="mask"``) is retaken
+    at ``z - h_j``, with its step reversed; when that one diverges too, the column is zero."""
+    from sysid.identification.lsq import _probe_residuals
+
+    params = ModelParameters.nominal().with_frozen(free=["joint_damping", "motor_km", "k1"])
+    z = params.to_unit()
+    r = np.array([1.0, 2.0])
+    h = np.array([0.01, 0.01, -0.01])
+
+    def evaluate(Z, divergence):      # the request, as the fit's driver would receive it
+        return np.array(Z), divergence
+
+    steps = _probe_residuals(evaluate, params, z, r, h)
+    probes = next(steps)
+    assert probes[1] == "mask" and np.allclose(probes[0], z[None, :] + np.diag([0.01, 0.01, -0.01]))
+    back = steps.send(np.array([[1.5, 2.5], [np.nan, np.nan], [np.nan, 0.0]]))   # coordinates 1 and 2 diverged
+    assert back[1] == "mask" and np.allclose(back[0], z - np.array([0.0, 0.01, 0.0]))
+    back2 = steps.send(np.array([[0.5, 1.5]]))          # coordinate 1 is stable on the other side
+    assert np.allclose(back2[0], z + np.array([0.0, 0.0, 0.01]))
+    with pytest.raises(StopIteration) as done:
+        steps.send(np.array([[np.nan, np.nan]]))          # coordinate 2 diverges on both sides
+    rows = done.value.value
+    assert np.array_equal(rows, [[1.5, 2.5], [0.5, 1.5], [1.0, 2.0]])
+    assert np.array_equal(h, [0.01, -0.01, -0.01])
+    J = ((rows - r[None, :]) / h[:, None]).T
+    assert np.allclose(J[:, 1], [50.0, 50.0]) and np.array_equal(J[:, 2], [0.0, 0.0])

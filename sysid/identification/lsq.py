@@ -56,6 +56,7 @@ import numpy as np
 
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
+from integrators.batch import Divergence
 from sysid.identification.intervals import Whiteness, sandwich_covariance, whiteness
 from sysid.identification.lockstep import Evaluate, Steps, run
 from sysid.identification.objective import Objective
@@ -229,6 +230,28 @@ def forward_steps(params: ModelParameters, z: np.ndarray, step: float) -> np.nda
         if not feasible(params, probe):
             h[j] = -h[j]
     return h
+
+
+def _probe_residuals(evaluate: Callable[[np.ndarray, Divergence], Evaluate], params: ModelParameters, z: np.ndarray,
+                     r: np.ndarray, h: np.ndarray) -> Steps[np.ndarray]:
+    """The residuals at each finite-difference probe ``z + h_j e_j`` (one row per coordinate),
+    for a Jacobian whose column ``j`` is ``(row_j - r) / h_j``, ``r`` the residuals at ``z``.
+
+    A probe whose simulation diverges (a ground parameter stepped to where the contact sinks
+    through it while the model at ``z`` itself simulates) is taken on the other side of ``z``
+    instead, with ``h_j`` reversed in place: the slope is measured from the side where the model
+    is stable. A coordinate with no stable feasible probe on either side gets ``r`` (a zero
+    column: this iteration's step leaves it where it is)."""
+    rows = np.array((yield evaluate(z[None, :] + np.diag(h), "mask")))
+    for j in np.flatnonzero(np.isnan(rows).any(axis=1)):
+        probe = z.copy()
+        probe[j] -= h[j]
+        back = (yield evaluate(probe[None, :], "mask"))[0] if feasible(params, probe) else None
+        if back is None or np.isnan(back).any():
+            rows[j] = r
+        else:
+            h[j], rows[j] = -h[j], back
+    return rows
 
 
 def _unit_jacobian(params: ModelParameters) -> np.ndarray:
@@ -442,8 +465,9 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
     friction = _friction_row(params0)
     horizon = max(float(tg.duration) for tg in objective.spec.targets)
 
-    def residuals(Z: np.ndarray) -> Evaluate:
-        return Evaluate(objective, np.array([params0.from_unit(zz).as_vector() for zz in np.atleast_2d(Z)]))
+    def residuals(Z: np.ndarray, divergence: Divergence = "raise") -> Evaluate:
+        return Evaluate(objective, np.array([params0.from_unit(zz).as_vector() for zz in np.atleast_2d(Z)]),
+                        divergence)
 
     def over_budget() -> bool:
         return budget_seconds is not None and time.perf_counter() - t_start > budget_seconds
@@ -463,8 +487,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
     for k in range(max_iterations):
         it = first_iteration + k
         h = forward_steps(params0, z, fd_step)
-        Zp = z[None, :] + np.diag(h)
-        Rp = yield residuals(Zp)
+        Rp = yield from _probe_residuals(residuals, params0, z, r, h)
         J = ((Rp - r[None, :]) / h[:, None]).T
         g = J.T @ r
         H = J.T @ J
