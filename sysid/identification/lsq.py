@@ -21,7 +21,8 @@ this machine it costs 12.8 us per step (3x an ABA) before the hand-written deriv
 contact and actuator kernels and the 17 x (17 + d) tangent propagation, more than the ``d + 1``
 batched rollouts (about 4.4 us per environment-step), and the regularised friction makes
 long-horizon sensitivities stiff. Finite differences in unit coordinates with step 1e-3 smooth
-over that stiffness.
+over that stiffness. A probe whose simulation diverges while the point itself simulates is
+retaken on the other side of the point (:func:`_probe_residuals`).
 
 Confidence intervals come from the HAC sandwich covariance
 ``(J^T J)^-1 Omega (J^T J)^-1`` of :mod:`sysid.identification.intervals` (``Omega`` the prewhitened
