@@ -15,6 +15,7 @@ from cobra_model.errors import InputError
 from cobra_model.run import Run
 from cobra_model.run_files import write_run
 from integrators.simulate import simulate_gait
+from integrators.simulator import SimulationDiverged
 from sysid.identification.datacheck import (FLAT_LOADING, DataCheck, analyse_jacobian, apply, check_runs, inspect_run,
                              unit_jacobian)
 from sysid.discrepancy.effects import EffectLibrary
@@ -326,3 +327,27 @@ def test_the_check_weighs_the_motor_currents_when_the_fit_will(runs):
 def _samples(runs: list[Run], horizon_s: float) -> list[int]:
     """Residual samples per run on the check's horizon (the objective's 10 Hz)."""
     return [len(Objective([r], ModelParameters.nominal()).truncated(horizon_s).spec.targets[0].t_samples) for r in runs]
+
+
+def test_a_probe_that_diverges_is_retaken_on_the_other_side_and_one_that_cannot_be_is_named():
+    """The check's Jacobian takes a diverged probe the way the fit does (``lsq.retake_diverged``):
+    on residuals linear in the unit coordinates the slope from the stable side is the slope. A
+    parameter whose probes diverge on both sides, or a model that diverges where it stands, is a
+    clear error instead of a zero column that would read as "not excited"."""
+    from cliff import Cliff
+
+    params = ModelParameters.nominal().with_frozen(free=["joint_damping", "motor_km", "mu_c"])
+    z = params.to_unit()
+    A = np.array([[1.0, 2.0, 0.0], [0.0, -3.0, 1.0], [0.5, 0.0, 4.0], [1.0, 1.0, 1.0]])
+    wide = np.ones(3)
+    below, above = z - FD_STEP / 2, z + FD_STEP / 2
+    # motor_km's forward probe is over the cliff: measured backwards, the same slope
+    cliff = Cliff(params, A, np.zeros(3), np.where([False, True, False], above, wide))
+    J = unit_jacobian(cliff)
+    assert np.allclose(J, A, rtol=0, atol=1e-9) and cliff.evaluations == 4 + 1   # the point, 3 probes, 1 retaken
+    # motor_km stable only within half a step of its value: no side to measure from
+    with pytest.raises(SimulationDiverged, match=rf"diverges when motor_km is stepped by {FD_STEP:g} of its range either way"):
+        unit_jacobian(Cliff(params, A, np.where([False, True, False], below, 0.0), np.where([False, True, False], above, wide)))
+    # the model diverges where it stands: the simulation's own error
+    with pytest.raises(SimulationDiverged, match=r"rows \[0\] fell off the cliff"):
+        unit_jacobian(Cliff(params, A, np.zeros(3), np.where([True, False, False], z - 0.1, wide)))

@@ -170,7 +170,7 @@ def test_the_trust_region_starts_small_and_grows_where_the_model_predicts_well(r
 def test_a_probe_that_diverges_is_taken_on_the_stable_side_or_leaves_its_column_zero():
     """The Jacobian's probes: a diverged one (NaN residuals, ``divergence="mask"``) is retaken
     at ``z - h_j``, with its step reversed; when that one diverges too, the column is zero."""
-    from sysid.identification.lsq import _probe_residuals
+    from sysid.identification.lsq import probe_residuals
 
     params = ModelParameters.nominal().with_frozen(free=["joint_damping", "motor_km", "k1"])
     z = params.to_unit()
@@ -180,7 +180,7 @@ def test_a_probe_that_diverges_is_taken_on_the_stable_side_or_leaves_its_column_
     def evaluate(Z, divergence):      # the request, as the fit's driver would receive it
         return np.array(Z), divergence
 
-    steps = _probe_residuals(evaluate, params, z, r, h)
+    steps = probe_residuals(evaluate, params, z, r, h)
     probes = next(steps)
     assert probes[1] == "mask" and np.allclose(probes[0], z[None, :] + np.diag([0.01, 0.01, -0.01]))
     back = steps.send(np.array([[1.5, 2.5], [np.nan, np.nan], [np.nan, 0.0]]))   # coordinates 1 and 2 diverged

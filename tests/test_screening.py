@@ -262,3 +262,33 @@ def test_the_refit_with_a_named_limit_also_starts_from_the_base_fits_own_start()
     for name, value in {"torque_limit": 2.5, "motor_km": 0.0098, "mu_c": 0.24}.items():
         assert kept.params.value(name) == pytest.approx(value, rel=0.02), name
     assert kept.params.value("joint_damping") == pytest.approx(0.16, rel=0.15)
+
+
+def test_a_profile_keeps_the_values_whose_start_simulates_and_measures_a_diverged_probe_from_the_other_side():
+    """A profile value whose start diverges costs infinity and the others keep their profiles
+    (one such value used to cost every value infinity); a probe that diverges is retaken on the
+    stable side, so on residuals linear in the unit coordinates the profile is the one with no
+    cliff at all."""
+    from cliff import Cliff
+    from sysid.discrepancy.diagnose import _profiles
+
+    params = ModelParameters.nominal().with_frozen(free=["joint_damping", "motor_km", "mu_c"])
+    z0 = params.to_unit()
+    A = np.array([[1.0, 0.5, 0.0], [0.0, 1.0, 2.0], [3.0, 0.0, 1.0], [1.0, 1.0, 1.0]])
+    target = A @ (z0 - np.array([0.05, 0.0, 0.04]))     # the best fit lowers joint_damping and mu_c
+
+    class Shifted(Cliff):
+        def residuals(self, X, divergence="raise"):
+            return super().residuals(X, divergence) - target
+
+    km = params["motor_km"]
+    values = [float(km.from_unit_interval(0.3)), float(km.from_unit_interval(0.9))]
+    wide = Shifted(params, A, np.zeros(3), np.ones(3))
+    # joint_damping's forward probe falls off; motor_km above 0.5 of its range diverges
+    cliff = Shifted(params, A, np.zeros(3), np.array([z0[0] + 1e-3, 0.5, 1.0]))
+    costs, fitted = run(_profiles(cliff, "motor_km", values))
+    reference, expected = run(_profiles(wide, "motor_km", values[:1]))
+    assert costs[1] == np.inf and fitted[1].value("motor_km") == pytest.approx(values[1])
+    assert np.isfinite(costs[0]) and costs[0] == pytest.approx(reference[0], rel=1e-9)
+    assert np.allclose(fitted[0].to_unit(), expected[0].to_unit(), rtol=0, atol=1e-9)
+    assert fitted[0].to_unit()[0] < z0[0]              # the step went down the slope it measured

@@ -64,13 +64,14 @@ from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.run import Run
+from integrators.batch import Divergence
 from integrators.rollout_memo import memoised_rollouts
 from integrators.simulate import rollout_like, simulate_like
 from integrators.simulator import Simulator
 from sysid.discrepancy.effects import Effect, EffectLibrary
 from sysid.identification.contact_choice import BASIN_PARAMETERS, StartFit, fit_from_shapes, fit_starts
 from sysid.identification.lockstep import Evaluate, Steps, run_together
-from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq_steps, forward_steps
+from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq_steps, forward_steps, retake_diverged
 from sysid.identification.objective import Objective, Weights, runs_without_current
 from sysid.identification.splits import spread_over_gaits
 from sysid.gap.report import GapSummary, HeldOut, head_text, pair_held_out
@@ -441,7 +442,11 @@ def _profiles(screen: Objective, name: str, values: Sequence[float]
 
     Batched: the finite-difference Jacobians at every value are one evaluation and the steps
     at every value and damping (:data:`PROFILE_DAMPINGS`) another (requests of a computation,
-    :mod:`sysid.identification.lockstep`).
+    :mod:`sysid.identification.lockstep`). A value whose start diverges costs infinity; a
+    probe that diverges while its start simulates is retaken on the other side of the start
+    (:func:`sysid.identification.lsq.retake_diverged`), and with no stable side its column is
+    zero (the step leaves that parameter where it is). Either way the other values keep their
+    profiles.
     """
     objective = _capped(screen, PROFILE_HORIZON_S)
     trial = screen.params
@@ -454,10 +459,11 @@ def _profiles(screen: Objective, name: str, values: Sequence[float]
         z = z0.copy()
         z[k] = float(trial[name].to_unit_interval(v))
         starts.append(z)
-    rows = []
+    rows, steps = [], []
     for z in starts:
         rows.append(z)
         h = forward_steps(trial, z, FD_STEP)
+        steps.append(h)
         for i in others:
             zi = z.copy()
             zi[i] += h[i]
@@ -465,23 +471,32 @@ def _profiles(screen: Objective, name: str, values: Sequence[float]
     def as_x(Z: Sequence[np.ndarray]) -> np.ndarray:
         return np.array([trial.from_unit(z).as_vector() for z in Z])
 
-    try:
-        R = yield Evaluate(objective, as_x(rows))
-    except RuntimeError:  # a start diverged: no profile from it
-        return np.full(len(values), np.inf), [trial.from_unit(z) for z in starts]
-    trials = []
+    def evaluate(Z: np.ndarray, divergence: Divergence) -> Evaluate:
+        return Evaluate(objective, as_x(Z), divergence)
+
+    R = yield Evaluate(objective, as_x(rows), "mask")
     per = len(others) + 1
-    for j, z in enumerate(starts):
+    trials, live = [], []
+    for j, (z, h) in enumerate(zip(starts, steps)):
         r = R[j * per]
-        J = np.stack([(R[j * per + 1 + n] - r) / (rows[j * per + 1 + n][i] - z[i])
-                      for n, i in enumerate(others)], axis=1)
+        live += [not np.isnan(r).any()] * len(PROFILE_DAMPINGS)
+        if not live[-1]:  # this value's start diverged: no profile from it
+            trials += [z] * len(PROFILE_DAMPINGS)
+            continue
+        probes = np.insert(R[j * per + 1:(j + 1) * per], k, r, axis=0)   # row k: a zero column, never used
+        probes = yield from retake_diverged(evaluate, trial, z, h, probes)
+        probes[np.isnan(probes).any(axis=1)] = r    # no stable probe on either side: a zero column
+        J = np.stack([(probes[i] - r) / ((z[i] + h[i]) - z[i]) for i in others], axis=1)
         g, H = J.T @ r, J.T @ J
         for lam in PROFILE_DAMPINGS:
             dz = np.linalg.solve(H + lam * np.diag(np.maximum(np.diag(H), 1e-12)), -g)
             zt = z.copy()
             zt[others] = np.clip(z[others] + dz, 0.0, 1.0)
             trials.append(zt if feasible(trial, zt) else z)
-    costs = (yield from _cost_steps(objective, as_x(trials))).reshape(len(values), len(PROFILE_DAMPINGS))
+    costs = np.full(len(trials), np.inf)
+    if any(live):
+        costs[live] = yield from _cost_steps(objective, as_x([t for t, ok in zip(trials, live) if ok]))
+    costs = costs.reshape(len(values), len(PROFILE_DAMPINGS))
     pick = costs.argmin(axis=1)
     return (costs[np.arange(len(values)), pick],
             [trial.from_unit(trials[j * len(PROFILE_DAMPINGS) + c]) for j, c in enumerate(pick)])

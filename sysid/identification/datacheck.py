@@ -34,8 +34,9 @@ from cobra_model.errors import InputError
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.run import Run
-from integrators.simulator import SimSettings
-from sysid.identification.lsq import DEFAULT_HORIZONS_S, FD_STEP, forward_steps
+from integrators.simulator import SimSettings, SimulationDiverged
+from sysid.identification.lockstep import Evaluate, run
+from sysid.identification.lsq import DEFAULT_HORIZONS_S, FD_STEP, forward_steps, retake_diverged
 from sysid.identification.objective import Objective, Weights
 
 #: A sample interval longer than this multiple of the run's median interval is a gap. A logger
@@ -422,14 +423,30 @@ def unit_jacobian(objective: Objective, *, fd_step: float = FD_STEP) -> np.ndarr
     Made exactly as :func:`sysid.identification.lsq.fit_lsq` makes one: steps from
     :func:`sysid.identification.lsq.forward_steps` (inward at an upper bound, away from ``mu_s = mu_c``), the
     base and every perturbed parameter vector simulated in one batched
-    :meth:`Objective.residuals` call, at the objective's parameter set.
+    :meth:`Objective.residuals` call, at the objective's parameter set; a probe that diverges is
+    retaken on the other side (:func:`sysid.identification.lsq.retake_diverged`).
+
+    Raises:
+        SimulationDiverged: the simulation at the parameter set diverges, or a parameter's
+            probes diverge on both sides of it (named: its slope cannot be measured).
     """
     params = objective.params
     z = params.to_unit()
     h = forward_steps(params, z, fd_step)
-    Z = np.vstack([z, z[None, :] + np.diag(h)])
-    R = objective.residuals(np.array([params.from_unit(zz).as_vector() for zz in Z]))
-    return ((R[1:] - R[0][None, :]) / h[:, None]).T
+
+    def as_x(Z: np.ndarray) -> np.ndarray:
+        return np.array([params.from_unit(zz).as_vector() for zz in np.atleast_2d(Z)])
+
+    R = objective.residuals(as_x(np.vstack([z, z[None, :] + np.diag(h)])), "mask")
+    if np.isnan(R[0]).any():
+        objective.residuals(as_x(z))  # raises, naming the time and what diverged
+    rows = run(retake_diverged(lambda Z, divergence: Evaluate(objective, as_x(Z), divergence), params, z, h, R[1:]))
+    unstable = [params.free_names[j] for j in np.flatnonzero(np.isnan(rows).any(axis=1))]
+    if unstable:
+        raise SimulationDiverged(f"the simulation diverges when {_and(unstable)} is stepped by {fd_step:g} of its "
+                                 "range either way from its value: its effect on these runs cannot be measured; "
+                                 "start from other values")
+    return ((rows - R[0][None, :]) / h[:, None]).T
 
 
 def analyse_jacobian(J: np.ndarray, params: ModelParameters, *, horizon_s: float = float("nan"),
@@ -613,7 +630,8 @@ def check_runs(runs: Sequence[Run], params: ModelParameters, *, horizon_s: float
 
     Raises:
         InputError: ``horizon_s`` not positive, or no free parameter in ``params``.
-        SimulationDiverged: the nominal simulation of a run diverges.
+        SimulationDiverged: the nominal simulation of a run diverges, or a parameter's probes
+            diverge on both sides of its value (:func:`unit_jacobian`).
     """
     if not (horizon_s > 0 and math.isfinite(horizon_s)):
         raise InputError(f"horizon must be a positive number of seconds, got {horizon_s}")

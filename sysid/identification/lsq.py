@@ -22,7 +22,7 @@ contact and actuator kernels and the 17 x (17 + d) tangent propagation, more tha
 batched rollouts (about 4.4 us per environment-step), and the regularised friction makes
 long-horizon sensitivities stiff. Finite differences in unit coordinates with step 1e-3 smooth
 over that stiffness. A probe whose simulation diverges while the point itself simulates is
-retaken on the other side of the point (:func:`_probe_residuals`).
+retaken on the other side of the point (:func:`retake_diverged`).
 
 Confidence intervals come from the HAC sandwich covariance
 ``(J^T J)^-1 Omega (J^T J)^-1`` of :mod:`sysid.identification.intervals` (``Omega`` the prewhitened
@@ -233,24 +233,38 @@ def forward_steps(params: ModelParameters, z: np.ndarray, step: float) -> np.nda
     return h
 
 
-def _probe_residuals(evaluate: Callable[[np.ndarray, Divergence], Evaluate], params: ModelParameters, z: np.ndarray,
-                     r: np.ndarray, h: np.ndarray) -> Steps[np.ndarray]:
+def probe_residuals(evaluate: Callable[[np.ndarray, Divergence], Evaluate], params: ModelParameters, z: np.ndarray,
+                    r: np.ndarray, h: np.ndarray) -> Steps[np.ndarray]:
     """The residuals at each finite-difference probe ``z + h_j e_j`` (one row per coordinate),
     for a Jacobian whose column ``j`` is ``(row_j - r) / h_j``, ``r`` the residuals at ``z``.
 
-    A probe whose simulation diverges (a ground parameter stepped to where the contact sinks
-    through it while the model at ``z`` itself simulates) is taken on the other side of ``z``
-    instead, with ``h_j`` reversed in place: the slope is measured from the side where the model
-    is stable. A coordinate with no stable feasible probe on either side gets ``r`` (a zero
-    column: this iteration's step leaves it where it is)."""
+    A probe whose simulation diverges is retaken on the other side of ``z``
+    (:func:`retake_diverged`). A coordinate with no stable feasible probe on either side gets
+    ``r`` (a zero column: this iteration's step leaves it where it is)."""
     rows = np.array((yield evaluate(z[None, :] + np.diag(h), "mask")))
+    rows = yield from retake_diverged(evaluate, params, z, h, rows)
+    rows[np.isnan(rows).any(axis=1)] = r
+    return rows
+
+
+def retake_diverged(evaluate: Callable[[np.ndarray, Divergence], Evaluate], params: ModelParameters, z: np.ndarray,
+                    h: np.ndarray, rows: np.ndarray) -> Steps[np.ndarray]:
+    """``rows``, the residuals at the probes ``z + h_j e_j`` (NaN where the simulation diverged,
+    as ``divergence="mask"`` gives them), with each diverged probe retaken at ``z - h_j`` and
+    ``h_j`` reversed in place: the slope is measured from the side where the model is stable.
+
+    Why: a ground parameter stepped by ``h_j`` can put the model where the contact sinks through
+    the ground while the model at ``z`` itself simulates. A row still NaN has no stable
+    feasible probe on either side; the caller decides what that means. A computation
+    (:mod:`sysid.identification.lockstep`)."""
+    rows = np.array(rows, dtype=float)
     for j in np.flatnonzero(np.isnan(rows).any(axis=1)):
         probe = z.copy()
         probe[j] -= h[j]
-        back = (yield evaluate(probe[None, :], "mask"))[0] if feasible(params, probe) else None
-        if back is None or np.isnan(back).any():
-            rows[j] = r
-        else:
+        if not feasible(params, probe):
+            continue
+        back = (yield evaluate(probe[None, :], "mask"))[0]
+        if not np.isnan(back).any():
             h[j], rows[j] = -h[j], back
     return rows
 
@@ -488,7 +502,7 @@ def _levenberg_marquardt(objective: Objective, z: np.ndarray, *, max_iterations:
     for k in range(max_iterations):
         it = first_iteration + k
         h = forward_steps(params0, z, fd_step)
-        Rp = yield from _probe_residuals(residuals, params0, z, r, h)
+        Rp = yield from probe_residuals(residuals, params0, z, r, h)
         J = ((Rp - r[None, :]) / h[:, None]).T
         g = J.T @ r
         H = J.T @ J
