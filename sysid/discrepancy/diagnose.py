@@ -72,7 +72,7 @@ from sysid.discrepancy.effects import Effect, EffectLibrary
 from sysid.identification.contact_choice import BASIN_PARAMETERS, StartFit, fit_from_shapes, fit_starts
 from sysid.identification.lockstep import Evaluate, Steps, run_together
 from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq_steps, forward_steps, retake_diverged
-from sysid.identification.objective import Objective, Weights, runs_without_current
+from sysid.identification.objective import SENSOR_NOISE, Objective, Weights, runs_without_current
 from sysid.identification.splits import spread_over_gaits
 from sysid.gap.report import GapSummary, HeldOut, head_text, pair_held_out
 from sysid.discrepancy.signature import Signature, localise
@@ -309,9 +309,25 @@ class Diagnosis:
         }
 
 
+#: A held-out final head error that grows by less than this [m] (four times the motion capture's
+#: noise per axis), or by less than a tenth, after the effects are named is not said to have grown.
+HEAD_GROWTH_FLOOR_M = 4 * SENSOR_NOISE["head"]
+
+
+def head_grew(before: GapSummary, after: GapSummary) -> bool:
+    """Whether the held-out final head error grew beyond noise from ``before`` to ``after``: a
+    named effect that explains the joints while the head path moves further off, the mark of a
+    difference (most often the ground's) that no library effect closes. False on joint-only runs."""
+    b, a = before.head_final_error_m, after.head_final_error_m
+    if b is None or a is None or not (np.isfinite(b) and np.isfinite(a)):
+        return False
+    return a - b > max(HEAD_GROWTH_FLOOR_M, 0.1 * b)
+
+
 def verdict(d: Diagnosis) -> str:
-    """The diagnosis in words: the structural difference (proxies) first, then the effects named,
-    or that nothing explains the gap, with the residual signature when no effect is named."""
+    """The diagnosis in words: the structural difference (proxies) first, then the effects named
+    (and whether the held-out head path grew while they explained the joints), or that nothing
+    explains the gap, with the residual signature when no effect is named."""
     parts = []
     if d.structural:
         proxies = "; ".join(f"{s.name} would cut the held-out cost by {100 * s.held_out_improvement:.0f} % "
@@ -322,6 +338,12 @@ def verdict(d: Diagnosis) -> str:
         names = " and ".join(e.name for e in d.effects)
         parts.append(f"missing effect{'s' if len(d.effects) > 1 else ''}: {names}; held-out final head error "
                      + head_text(d.gap_before.head_final_error_m, d.gap_after.head_final_error_m))
+        if head_grew(d.gap_before, d.gap_after):
+            parts.append(f"the head's error grew while the joints' RMSE went {d.gap_before.joint_rmse_rad:.4f} -> "
+                         f"{d.gap_after.joint_rmse_rad:.4f} rad: the named effect"
+                         f"{'s explain' if len(d.effects) > 1 else ' explains'} the joints, not the head path, "
+                         "whose gap no library effect closes (a structural difference, most often the ground "
+                         "contact's: a diagnosis under another contact law may close it)")
     else:
         parts.append("no library effect explains the gap" + (" significantly" if not d.structural else ""))
     if not d.effects or d.structural:
