@@ -16,21 +16,24 @@ TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}  # MuJoCo's va
 GAITS = (0.35, 0.5, 0.65)  # Hz
 
 
+def truth() -> ModelParameters:
+    """The nominal parameters at MuJoCo's values (:data:`TRUTH`)."""
+    return ModelParameters.nominal().with_values(**TRUTH)
+
+
 def record(cobra, options, rng, name, duration, xy, heading):
     """One MuJoCo run per gait frequency, ``duration`` s long from ``xy`` [m] at ``heading`` [rad]."""
-    truth = ModelParameters.nominal().with_values(**TRUTH)
-    return [record_mujoco(RunPlan(f"{name}{f}", f, duration, xy, heading, name), options, rng, cobra, truth)
+    return [record_mujoco(RunPlan(f"{name}{f}", f, duration, xy, heading, name), options, rng, cobra, truth())
             for f in GAITS]
 
 
 def runs_of(cobra, options_of):
     """Three 3 s training runs and three 6 s held-out runs at another heading (seed 5, the
     development seed of benchmarks/mujoco_fit.py)."""
-    truth = ModelParameters.nominal().with_values(**TRUTH)
-    options = options_of(twin_options(truth))
+    options = options_of(twin_options(truth()))
     rng = np.random.default_rng(5)
-    return (record(cobra, options, rng, "t", 3.0, (0.0, 0.0), 0.3), record(cobra, options, rng, "h", 6.0, (0.5, -0.5), 1.3),
-            options)
+    return (record(cobra, options, rng, "t", 3.0, (0.0, 0.0), 0.3),
+            record(cobra, options, rng, "h", 6.0, (0.5, -0.5), 1.3), options)
 
 
 def validation_runs(cobra, options):
