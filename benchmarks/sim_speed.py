@@ -16,6 +16,9 @@ linearised from the same Dynamixel loop, reading a precomputed command table. Ou
   and ``cobra compare`` run with a parameter file fitted under those laws); the elliptic law is
   also set against MuJoCo on its elliptic cone (``cone="elliptic"``), the same contact
   problem (MuJoCo's default is the pyramid);
+- ``Simulator.rollout`` with the ``q_ref`` callable and the compliant ground's friction taken
+  implicitly (``SimSettings(friction_step="implicit")``, ``cobra simulate --friction-step
+  implicit``: the sign regularised at 1 mm/s), for what it costs (no target: not the default);
 - the batched rollout of the objective (``BatchSimulator``), per environment-step;
 - the momentum-form step (``SimSettings(scheme="momentum")``, bounded energy error), on the
   core's path, for what it costs (no target: it is not the fits' step).
@@ -94,6 +97,7 @@ def main() -> None:
     soft = {law: Simulator(model, ModelParameters.nominal().with_contact_law(law))
             for law in ("soft_constraint", "soft_elliptic")}
     momentum = Simulator(model, settings=SimSettings(scheme="momentum"))
+    implicit = Simulator(model, settings=SimSettings(friction_step="implicit"))
     st = sim.rest_state(gait.q_ref(0.0))
     reference = simulate_gait(gait, DURATION, model=model)
     paths = [
@@ -105,6 +109,8 @@ def main() -> None:
         ("simulate_like of a 10 s run (cobra compare)", lambda: simulate_like(reference, model=model), 0.5),
         *((f"Simulator.rollout, q_ref callable, record every step, {law} contact law",
            lambda s=s: s.rollout(st, gait.q_ref, DURATION), 0.5) for law, s in soft.items()),
+        ("Simulator.rollout, q_ref callable, record every step, friction taken implicitly (friction_step='implicit')",
+         lambda: implicit.rollout(st, gait.q_ref, DURATION), None),
         ("momentum-form step (scheme='momentum'): Simulator.rollout, command table, record every 10th step",
          lambda: momentum.rollout(st, table, DURATION, record_every=10), None),
     ]

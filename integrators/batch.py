@@ -68,6 +68,7 @@ class BatchSimulator:
         self.act = np.ascontiguousarray(np.stack([s.act for s in self.sims]))
         self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
         self._soft = first.contact_law in K.SOFT_LAWS
+        self._minv = first.loop_law != K.LAW_COMPLIANT  # the loop takes D^-1 (soft laws, implicit friction)
         # each body's weight at the reference pose, which scales the soft laws' compliance
         self.body_weight = np.ascontiguousarray(np.stack([s.model.reference_weights for s in self.sims]) if self._soft
                                                 else np.zeros((len(params), 0)))
@@ -77,7 +78,7 @@ class BatchSimulator:
                          np.array([d.handle for d in self._native], dtype=np.intp))
         self._first = first
         # what every rollout of this batch shares, as a memo's key (integrators.rollout_memo)
-        self._const = (first.contact_law, first.scal.tobytes(), first._chain_i.tobytes(), first._chain_R.tobytes(),
+        self._const = (first.loop_law, first.scal.tobytes(), first._chain_i.tobytes(), first._chain_R.tobytes(),
                        first._chain_f.tobytes(), first._feat_i.tobytes(), first._feat_f.tobytes(),
                        self.settings.substeps, self.model.chain.floating)
 
@@ -205,7 +206,7 @@ class BatchSimulator:
             k = len(t)
             work = np.empty((k, K.workspace_size(nf, nb)))
             record = np.full((k, n_rec, nq + nv + nj), np.nan)
-            minv = np.zeros((k, nv, nv) if self._soft else (k, 0, 0))
+            minv = np.zeros((k, nv, nv) if self._minv else (k, 0, 0))
             warm = np.zeros((k, nf, 4) if self._soft else (k, 0, 4))
             status = np.zeros(k, dtype=np.int64)
             failed_at = np.zeros(k, dtype=np.int64)
@@ -215,7 +216,7 @@ class BatchSimulator:
             numba.set_num_threads(min(self.threads, numba.config.NUMBA_NUM_THREADS))
             chunk = numba.set_parallel_chunksize(1)
             try:
-                K.batch_rollout_loop(self._handles[0][t], self._handles[1][t], K.LOOP_LAWS[f.contact_law], plan[t], Qt,
+                K.batch_rollout_loop(self._handles[0][t], self._handles[1][t], f.loop_law, plan[t], Qt,
                                      Vt, A[t], goals, gidx[t], servo[t], on, self.act[t], f.scal, self.ground[t],
                                      f._chain_i, f._chain_R, f._chain_f, f._feat_i, f._feat_f, np.empty((k, nv)), work,
                                      record, minv, self.body_weight[t], warm, status, failed_at)

@@ -545,8 +545,10 @@ def post_step(q, v, a, scal, floating, q_out, v_out):
 P_STEPS, P_SUBSTEPS, P_RECORD_EVERY, P_INTEGRATE, P_FLOATING = 0, 1, 2, 3, 4
 N_PLAN = 5
 
-#: The contact laws' codes in :func:`rollout_loop` (the soft laws' from :data:`SOFT_LAWS`' cone).
-LAW_COMPLIANT, LAW_SOFT_PYRAMID, LAW_SOFT_ELLIPTIC = 0, 1, 2
+#: The contact laws' codes in :func:`rollout_loop` (the soft laws' from :data:`SOFT_LAWS`' cone;
+#: the compliant ground with its friction taken implicitly, :func:`implicit_friction_acceleration`,
+#: is a code of its own, not a law of :data:`LOOP_LAWS`: ``SimSettings.friction_step`` chooses it).
+LAW_COMPLIANT, LAW_SOFT_PYRAMID, LAW_SOFT_ELLIPTIC, LAW_COMPLIANT_IMPLICIT = 0, 1, 2, 3
 LOOP_LAWS: dict[str, int] = {"compliant": LAW_COMPLIANT,
                              **{law: LAW_SOFT_ELLIPTIC if elliptic else LAW_SOFT_PYRAMID
                                 for law, elliptic in SOFT_LAWS.items()}}
@@ -622,8 +624,9 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
     ground; for a soft-constraint law the same pass's acceleration without contact and ``D^-1``
     into ``minv`` (nv, nv) (:data:`integrators.native.ABA_MINVERSE`), then
     :func:`soft_contact_acceleration` with the bodies' weights ``body_weight`` and the
-    solver's warm start ``warm``. ``aba_model``, ``aba_data``: the native model and workspace
-    handles. The other arguments are :func:`rollout_step`'s.
+    solver's warm start ``warm``; for ``LAW_COMPLIANT_IMPLICIT`` that pass under the compliant
+    ground's forces, then :func:`implicit_friction_acceleration`. ``aba_model``, ``aba_data``:
+    the native model and workspace handles. The other arguments are :func:`rollout_step`'s.
 
     Returns ``(status, i)``: 0 and the last step done, or :func:`rollout_step`'s non-zero status
     at step ``i``. The loop ends after step ``plan[P_STEPS]`` (which only integrates and
@@ -635,7 +638,8 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
     # the arrays' addresses for Pinocchio, taken once (the loop updates the arrays in place)
     qp, vp, taup, ap, minvp = q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes
     floating = plan[P_FLOATING] != 0
-    scratch = soft_scratch(0 if law == LAW_COMPLIANT else feat_i.shape[0], v.shape[0])
+    scratch = soft_scratch(feat_i.shape[0] if law in (LAW_SOFT_PYRAMID, LAW_SOFT_ELLIPTIC) else 0, v.shape[0])
+    friction = friction_scratch(feat_i.shape[0] if law == LAW_COMPLIANT_IMPLICIT else 0, v.shape[0])
     elliptic = law == LAW_SOFT_ELLIPTIC
     cone_scratch = elliptic_scratch(feat_i.shape[0] if elliptic else 0, v.shape[0] if elliptic else 0)
     for i in range(start, stop):
@@ -647,7 +651,10 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
             ABA(aba_model, aba_data, qp, vp, taup, ap)
         else:
             ABA_MINVERSE(aba_model, aba_data, qp, vp, taup, ap, minvp)
-            if elliptic:
+            if law == LAW_COMPLIANT_IMPLICIT:
+                implicit_friction_acceleration(v, minv, floating, parents, vidx, f_body, X, F, kin_R, kin_v, ground,
+                                               scal[S_DT], a, friction)
+            elif elliptic:
                 soft_elliptic_acceleration(v, minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground,
                                            body_weight, warm, a, scratch, cone_scratch)
             else:
@@ -1331,4 +1338,176 @@ def soft_elliptic_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_
                                                     mu1 * ground[G_LATERAL], ground[G_TC], f, a, scratch[6],
                                                     cone_scratch)
     _store_warm(X, f, 3, warm)
+    return iterations
+
+
+#: Newton iterations of :func:`implicit_friction_acceleration` at most, and its tolerance on the
+#: slip's update as a fraction of the sign's regularisation velocity ``eps``.
+FRICTION_NEWTON_ITERATIONS = 20
+FRICTION_NEWTON_TOLERANCE = 1e-2
+
+
+@njit(cache=True)
+def friction_scratch(n_features: int, nv: int):
+    """Scratch arrays of :func:`implicit_friction_acceleration` for up to ``n_features``
+    touching points: their three contact rows each and what :func:`soft_contact_rows_into`
+    writes, the loaded points' tangent rows ``J`` and ``J D^-1`` (two each), ``W``, the Newton
+    matrix and its factor, and nine vectors (a rollout's loop makes them once)."""
+    m = 2 * n_features
+    return (np.empty(3 * n_features * nv), np.empty(3 * n_features), np.empty(3 * n_features), np.empty((3, nv)),
+            np.empty(m * nv), np.empty(m * nv), np.empty((m, m)), np.empty((m, m)), np.empty((m, m)),
+            np.empty((9, m)))
+
+
+@njit(cache=True, inline="always")
+def _tangent_friction(u, other, fz, mu_c, mu_s, mu_v, v_s, eps, lateral, cone, sideways):
+    """The friction force [N] along one tangent axis at slip ``u`` [m/s] (``other`` the slip
+    along the contact's other axis, for the cone's weights) and its dissipative slope ``c``
+    [N s/m]: :func:`ground_forces`' law, ``lateral`` applied when ``sideways``."""
+    s = mu_c - (mu_c - mu_s) * np.exp(-(u / v_s) ** 2)
+    if sideways:
+        s *= lateral
+        w = cone_weights(other, u, eps, cone)[1]
+    else:
+        w = cone_weights(u, other, eps, cone)[0]
+    t = np.tanh(u / eps)
+    return -s * fz * w * t - mu_v * u, s * fz * w * (1.0 - t * t) / eps + mu_v
+
+
+@njit(cache=True)
+def implicit_friction_acceleration(v, Minv, floating, parents, vidx, f_body, X, F, kin_R, kin_v, ground, dt, a,
+                                   scratch):
+    """The compliant ground's friction taken implicitly: accelerations (nv,) under the friction
+    forces at the step's end slip, ``v+ = v + dt a``.
+
+    :func:`ground_forces` evaluates the friction ``f(u0)`` at the slip ``u0 = J v`` of each
+    touching point along its contact frame's tangents (``J``: the loaded points' tangent rows,
+    ``t1``, ``t2`` of :func:`ground_forces`), with the normal force kept at ``v``. The end slip
+    ``u = J v+`` solves
+
+        u = u* + dt W f(u),    u* = u0 + dt J a0 - dt W f(u0),    W = J D^-1 J^T,
+
+    (``a0``: the explicit acceleration, ``u*`` the slip without friction), by Newton's method on
+    the slope of the law's dissipative part ``C = diag(c_i)``,
+    ``c_i = s_i F_z w_i (1 - tanh^2(u_i / eps)) / eps + mu_v`` (the Stribeck shape's and the
+    cone weights' derivatives left out), each update solved in the symmetric form
+    ``(I + S W S) S d = -S R`` with ``S = (dt C)^1/2``. An update that would carry a slip faster
+    than ``eps`` through zero is shortened to leave it at ``eps / 2`` on its side (the
+    transition-aware step of Castro et al.'s TAMSI, ICRA 2020; without it Newton's method cycles
+    across the ``tanh``). Then ``a = a0 + D^-1 J^T (f(u) - f(u0))``.
+
+    Why: the law's slope reaches ``s F_z / eps`` at rest, a stiffness the explicit step
+    resolves only when ``dt c_i`` is small next to the contact's effective mass; taken
+    implicitly it is stable at any ``eps``, so the sign can be regularised below the Stribeck
+    velocity's lower bound (``SimSettings.friction_step``). One linearised step (no Newton
+    iteration) is stable too, but it holds a contact that breaks away to a slip of about
+    ``eps`` more per step: at 1 ms steps and ``eps`` = 1 mm/s a yaw joint lagged the
+    converged step by up to 30 mrad.
+
+    Args:
+        v: velocity (nv,).
+        Minv: ``D^-1`` (nv, nv) with its upper triangle filled; its lower triangle is filled here.
+        f_body, X, F, kin_R, kin_v: the features' bodies, the points [m], their world forces [N],
+            rotations and body velocities :func:`ground_forces` left on this state.
+        ground: the ground parameters (``G_MU_C``, ``G_MU_S``, ``G_MU_V``, ``G_V_S``, ``G_EPS``,
+            ``G_LATERAL``, ``G_CONE``).
+        dt: the physics step [s].
+        a: (nv,) ``a0`` on entry, the acceleration on return.
+        scratch: :func:`friction_scratch` for at least ``X``'s features.
+
+    Returns:
+        Newton's iterations (0 without a loaded contact).
+    """
+    nv = v.shape[0]
+    for i in range(nv):
+        for j in range(i):
+            Minv[i, j] = Minv[j, i]
+    rows_buf, depth_buf, drift_buf, Jp, J_buf, B_buf, W_all, A, L, vec = scratch
+    rows, _, _ = soft_contact_rows_into(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, v, 0.0, 0.0, True,
+                                        rows_buf, depth_buf, drift_buf, Jp)
+    mu_c, mu_s, mu_v, v_s = ground[G_MU_C], ground[G_MU_S], ground[G_MU_V], ground[G_V_S]
+    eps, lateral, cone = ground[G_EPS], ground[G_LATERAL], ground[G_CONE]
+    fz, u, ustar, f0, f, c, res, p, d = vec[0], vec[1], vec[2], vec[3], vec[4], vec[5], vec[6], vec[7], vec[8]
+    n = 0                              # tangent rows of the loaded points
+    touching = 0
+    for k in range(X.shape[0]):
+        if X[k, 2] >= 0.0:
+            continue
+        r = 3 * touching
+        touching += 1
+        if F[k, 2] <= 0.0:
+            continue
+        for e in range(2):
+            fz[n + e] = F[k, 2]
+            acc = 0.0
+            for col in range(nv):
+                J_buf[(n + e) * nv + col] = rows[r + 1 + e, col]
+                acc += rows[r + 1 + e, col] * v[col]
+            u[n + e] = acc
+        n += 2
+    if n == 0:
+        return 0
+    J = J_buf[:n * nv].reshape((n, nv))
+    B = B_buf[:n * nv].reshape((n, nv))
+    np.dot(J, Minv, B)                 # J D^-1, D^-1 symmetric
+    W = W_all[:n, :n]
+    for i in range(n):
+        for j in range(i + 1):
+            acc = 0.0
+            for col in range(nv):
+                acc += B[i, col] * J[j, col]
+            W[i, j] = acc
+            W[j, i] = acc
+    for i in range(0, n, 2):
+        f0[i], c[i] = _tangent_friction(u[i], u[i + 1], fz[i], mu_c, mu_s, mu_v, v_s, eps, lateral, cone, False)
+        f0[i + 1], c[i + 1] = _tangent_friction(u[i + 1], u[i], fz[i], mu_c, mu_s, mu_v, v_s, eps, lateral, cone,
+                                                True)
+    for i in range(n):
+        acc = 0.0
+        for col in range(nv):
+            acc += J[i, col] * a[col]
+        for j in range(n):
+            acc -= W[i, j] * f0[j]
+        ustar[i] = u[i] + dt * acc
+        f[i] = f0[i]
+    iterations = 0
+    while iterations < FRICTION_NEWTON_ITERATIONS:
+        iterations += 1
+        for i in range(n):             # R = u - u* - dt W f(u), then S R with S = (dt c)^1/2
+            acc = 0.0
+            for j in range(n):
+                acc += W[i, j] * f[j]
+            res[i] = u[i] - ustar[i] - dt * acc
+            c[i] = np.sqrt(dt * c[i])
+            p[i] = -c[i] * res[i]
+        for i in range(n):             # I + S W S, lower triangle
+            for j in range(i + 1):
+                A[i, j] = c[i] * W[i, j] * c[j]
+            A[i, i] += 1.0
+        spd_factor(A, n, L)
+        spd_substitute(L, p, n, d)     # d = S (update)
+        step = 0.0
+        alpha = 1.0
+        for i in range(n):             # update = -R - W S (S update)
+            acc = -res[i]
+            for j in range(n):
+                acc -= W[i, j] * c[j] * d[j]
+            p[i] = acc
+            step = max_abs_into(step, acc)
+            end = u[i] + acc
+            if abs(u[i]) > eps and end * u[i] < 0.0:
+                alpha = min(alpha, (abs(u[i]) - 0.5 * eps) / abs(acc))
+        for i in range(n):
+            u[i] += alpha * p[i]
+        for i in range(0, n, 2):
+            f[i], c[i] = _tangent_friction(u[i], u[i + 1], fz[i], mu_c, mu_s, mu_v, v_s, eps, lateral, cone, False)
+            f[i + 1], c[i + 1] = _tangent_friction(u[i + 1], u[i], fz[i], mu_c, mu_s, mu_v, v_s, eps, lateral, cone,
+                                                   True)
+        if alpha >= 1.0 and step <= FRICTION_NEWTON_TOLERANCE * eps:
+            break
+    for col in range(nv):
+        acc = 0.0
+        for i in range(n):
+            acc += B[i, col] * (f[i] - f0[i])
+        a[col] += acc
     return iterations

@@ -153,7 +153,8 @@ def trajectory_to_run(model: CobraModel, traj: Trajectory, t_out: np.ndarray | N
 def _meta(params: ModelParameters, settings: SimSettings, gait: dict | None, notes: str) -> dict:
     meta = {"format": "cobra-run/1", "source": "simulation", "params": params.to_json_dict(),
             "sim_settings": {"dt": settings.dt, "control_dt": settings.control_dt,
-                             "sgn_eps": settings.sgn_eps, "scheme": settings.scheme}, "notes": notes}
+                             "sgn_eps": settings.friction_eps, "scheme": settings.scheme,
+                             "friction_step": settings.friction_step}, "notes": notes}
     if gait is not None:
         meta["gait"] = gait
     return meta

@@ -7,10 +7,13 @@ One physics step of length ``dt``::
     v+ = v + dt * a
     q+ = pin.integrate(q, dt * v+)                                # on the configuration manifold
 
-All forces are evaluated explicitly at (q, v); the step is the symplectic Euler of the issue,
-with no implicit treatment. What bounds the stable step is the stiffest dissipative term, the
-regularised Coulomb friction ``s F_z / eps`` (see ``integrators.kernels.ground_forces``),
-whose ``tanh`` caps it; the springs and dampers that do bound it are the ground's normal
+All forces are evaluated explicitly at (q, v) by default; the step is the symplectic Euler of
+the issue. ``SimSettings(friction_step="implicit")`` takes the ground's friction at the step's
+end slip instead (:func:`integrators.kernels.implicit_friction_acceleration`), so that its sign
+can be regularised at 1 mm/s rather than 1 cm/s. In the explicit step what bounds the stable
+step would be the stiffest dissipative term, the regularised Coulomb friction ``s F_z / eps``
+(see ``integrators.kernels.ground_forces``), were ``eps`` not large enough to cap it (at 1 cm/s
+it is; at 1 mm/s the 1 ms step chatters); the springs and dampers that do bound it are the ground's normal
 contact, the motor's back-EMF damping (every step) and the servo loop (every tick):
 :mod:`integrators.stability` gives the largest stable ``dt`` and ``control_dt`` for a model
 and parameter set. At ``dt = 1 ms`` the step is stable over the ground parameters' bounds, but
@@ -162,6 +165,12 @@ class ServoGains:
 
 #: The physics steps :class:`SimSettings` offers.
 SCHEMES = ("velocity", "momentum")
+#: How the velocity step takes the compliant ground's friction, with the default sign
+#: regularisation velocity [m/s] of each (:attr:`SimSettings.friction_eps`).
+FRICTION_STEPS = {"explicit": 0.01, "implicit": 0.001}
+#: How close [fraction] the regularised sign ``tanh(u / eps)`` comes to ``sign(u)`` above
+#: :attr:`SimSettings.faithful_slip`.
+SIGN_TOLERANCE = 0.01
 
 
 @dataclass(frozen=True)
@@ -173,30 +182,45 @@ class SimSettings:
         control_dt: servo position-loop period [s], an integer multiple of ``dt``.
         gains: servo position-loop gains.
         voltage: motor supply voltage [V].
-        sgn_eps: friction sign regularisation velocity [m/s] (see ``ground_forces``).
+        sgn_eps: friction sign regularisation velocity [m/s] (see ``ground_forces``); None:
+            the default of ``friction_step`` (:data:`FRICTION_STEPS`, :attr:`friction_eps`).
         joint_coulomb_eps: joint Coulomb friction regularisation [rad/s].
         max_depth: penetration [m] beyond which the run is declared diverged.
         max_speed: generalized speed [m/s or rad/s] beyond which the run is declared diverged.
         scheme: ``"velocity"`` (the step above; batched fits use it) or ``"momentum"``
             (:mod:`integrators.momentum_step`: symplectic Euler on the momentum, bounded energy
             error, about 20 times the cost; single rollouts only).
+        friction_step: how the velocity step takes the compliant ground's friction:
+            ``"explicit"`` at the step's start velocity (the sign's slope ``s F_z / eps`` must
+            be resolved by ``dt``, hence ``eps`` = 1 cm/s), or ``"implicit"``, linearised at its
+            end velocity (:func:`integrators.kernels.implicit_friction_acceleration`: stable at
+            ``eps`` = 1 mm/s, so the model is faithful to the Stribeck curve above
+            :attr:`faithful_slip` = 2.6 mm/s, below the Stribeck velocity's lower bound; about
+            twice the step's cost). The soft-constraint laws ignore it.
     """
 
     dt: float = 1e-3
     control_dt: float = 1e-3
     gains: ServoGains = field(default_factory=ServoGains)
     voltage: float = servo.SUPPLY_VOLTAGE_V
-    sgn_eps: float = 0.01
+    sgn_eps: float | None = None
     joint_coulomb_eps: float = 0.05
     max_depth: float = 0.03
     max_speed: float = 100.0
     scheme: str = "velocity"
+    friction_step: str = "explicit"
 
     def __post_init__(self) -> None:
         if not self.dt > 0:
             raise ValueError(f"dt must be > 0 s, got {self.dt}")
         if self.scheme not in SCHEMES:
             raise ValueError(f"scheme must be one of {', '.join(SCHEMES)}, got {self.scheme!r}")
+        if self.friction_step not in FRICTION_STEPS:
+            raise ValueError(f"friction_step must be one of {', '.join(FRICTION_STEPS)}, got {self.friction_step!r}")
+        if self.friction_step == "implicit" and self.scheme != "velocity":
+            raise ValueError(f"friction_step 'implicit' is a velocity-scheme step, got scheme {self.scheme!r}")
+        if self.sgn_eps is not None and not self.sgn_eps > 0:
+            raise ValueError(f"sgn_eps must be > 0 m/s, got {self.sgn_eps}")
         ratio = self.control_dt / self.dt
         if ratio < 1 - 1e-9 or abs(ratio - round(ratio)) > 1e-6:
             raise ValueError(
@@ -207,6 +231,18 @@ class SimSettings:
     def substeps(self) -> int:
         """Physics steps per control tick."""
         return int(round(self.control_dt / self.dt))
+
+    @property
+    def friction_eps(self) -> float:
+        """The friction sign's regularisation velocity [m/s]: ``sgn_eps``, or ``friction_step``'s default."""
+        return FRICTION_STEPS[self.friction_step] if self.sgn_eps is None else self.sgn_eps
+
+    @property
+    def faithful_slip(self) -> float:
+        """The slip speed [m/s] below which the regularised sign ``tanh(u / eps)`` falls more than
+        :data:`SIGN_TOLERANCE` short of ``sign(u)``: the model is faithful to a Stribeck curve
+        (``v_s``) only above it (``eps atanh(0.99)`` = 2.65 ``eps``)."""
+        return float(self.friction_eps * np.arctanh(1.0 - SIGN_TOLERANCE))
 
 
 #: Physics steps per soft-contact time constant at the least (:func:`contact_resolved`).
@@ -330,7 +366,7 @@ class Simulator:
         ground = np.zeros(K.N_GROUND)
         for name, slot in K.GROUND_PARAMETERS.items():
             ground[slot] = effect_value(p, name)
-        ground[K.G_EPS] = s.sgn_eps
+        ground[K.G_EPS] = s.friction_eps
         self.contact_law = p.contact_law
         if self.contact_law in K.SOFT_LAWS:
             if s.scheme != "velocity":
@@ -342,6 +378,10 @@ class Simulator:
                 raise InputError(f"contact_time_constant = {ground[K.G_TC]:g} s: the soft-constraint contact needs "
                                  f"at least two steps (2 dt = {2 * s.dt:g} s)")
         self.ground = ground
+        #: the compiled loop's law code (:data:`integrators.kernels.LOOP_LAWS`, or the compliant
+        #: ground with its friction taken implicitly)
+        self.loop_law = (K.LAW_COMPLIANT_IMPLICIT if self.contact_law == "compliant" and s.friction_step == "implicit"
+                         else K.LOOP_LAWS[self.contact_law])
         act = np.zeros((n, K.N_ACT))
         for name, slot in K.ACTUATOR_PARAMETERS.items():
             act[:, slot] = per_joint(name)
@@ -482,9 +522,15 @@ class Simulator:
         ABA for the compliant ground, with the soft-constraint contact forces for that law
         (``model``, ``data``: this simulator's Pinocchio model and data, as :func:`pin.aba` takes
         them)."""
-        if self.contact_law == "compliant":
+        if self.loop_law == K.LAW_COMPLIANT:
             return pin.aba(model, data, q, v, tau)
         a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD).copy()
+        if self.loop_law == K.LAW_COMPLIANT_IMPLICIT:
+            K.implicit_friction_acceleration(v, pin.computeMinverse(model, data).copy(), self.model.chain.floating,
+                                             self._chain_i[:, 0], self._chain_i[:, 2], self._feat_i[:, 0], self._X,
+                                             self._F, self._kin_R, self._kin_v, self.ground, self.settings.dt, a,
+                                             K.friction_scratch(len(self._feat_i), self.model.nv))
+            return a
         args = (v, pin.computeMinverse(model, data).copy(), self.model.chain.floating, self._chain_i[:, 0],
                 self._chain_i[:, 2], self._feat_i[:, 0], self._X, self._kin_R, self._kin_v, self.ground,
                 self.model.reference_weights, self._soft_warm, a, K.soft_scratch(len(self._feat_i), self.model.nv))
@@ -570,7 +616,7 @@ class Simulator:
             # only to report progress
             if self._native is None:
                 self._native = native.NativeData(native.native_model(self.model))
-            handles = self._native.model.handle, self._native.handle, K.LOOP_LAWS[self.contact_law]
+            handles = self._native.model.handle, self._native.handle, self.loop_law
             # the soft-constraint laws' workspace: D^-1, the bodies' weights, warm start
             weights = self.model.reference_weights if self.contact_law in K.SOFT_LAWS else np.zeros(0)
             soft = (np.zeros((nv, nv)), weights, self._soft_warm)

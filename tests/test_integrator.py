@@ -45,9 +45,10 @@ def test_free_flight_with_gravity_energy_bounded(cobra):
     assert np.all(np.abs(E - E[0]) <= 0.005 * ke_max * (tr.t - tr.t[0]) + 1e-6)
 
 
-def test_dissipation_never_adds_energy(cobra):
+@pytest.mark.parametrize("friction_step", ["explicit", "implicit"])
+def test_dissipation_never_adds_energy(cobra, friction_step):
     """Ground + damping, no actuation: energy never rises above the integrator's bound."""
-    sim = Simulator(cobra, ModelParameters.nominal())
+    sim = Simulator(cobra, ModelParameters.nominal(), SimSettings(friction_step=friction_step))
     rng = np.random.default_rng(3)
     rest = sim.rest_state(rng.uniform(-0.5, 0.5, 11))
     st = sim.state(rest.q + np.r_[0, 0, 0.1, np.zeros(15)], rng.normal(0, 0.5, cobra.nv))
@@ -77,8 +78,9 @@ def test_dropped_snake_rests_at_expected_penetration(cobra):
     assert np.abs(tr.v[-1]).max() < 1e-3
 
 
-def test_resting_snake_does_not_creep(cobra):
-    sim = Simulator(cobra)
+@pytest.mark.parametrize("friction_step", ["explicit", "implicit"])
+def test_resting_snake_does_not_creep(cobra, friction_step):
+    sim = Simulator(cobra, settings=SimSettings(friction_step=friction_step))
     st = sim.rest_state()
     tr = sim.rollout(st, np.zeros((1, 11)), 10.0, record_every=1000)
     drift = np.linalg.norm(tr.q[-1, :2] - tr.q[0, :2])
@@ -161,11 +163,12 @@ def test_double_pendulum_conserves_energy(erd_dir):
     assert abs(E[-200:].mean() - E[:200].mean()) <= 0.002 * swing
 
 
-def test_solo_dropped_on_ground_settles_passively(erd_dir):
+@pytest.mark.parametrize("friction_step", ["explicit", "implicit"])
+def test_solo_dropped_on_ground_settles_passively(erd_dir, friction_step):
     model = solo(erd_dir)
     assert len(model.features) >= 4
     params = ModelParameters.nominal().with_values(joint_damping=0.05, armature=1e-3)
-    sim = Simulator(model, params, SimSettings(dt=5e-4, control_dt=5e-4))
+    sim = Simulator(model, params, SimSettings(dt=5e-4, control_dt=5e-4, friction_step=friction_step))
     q = model.configuration(np.tile([0.8, -1.6], 4), np.array([0, 0, 0.35]))
     tr = sim.rollout(sim.state(q), np.zeros((1, 8)), 2.0, record_every=20, torque_on=np.zeros(8, bool))
     E = np.array([energy(sim.model, q_, v_) for q_, v_ in zip(tr.q, tr.v)])
@@ -204,14 +207,16 @@ def test_double_pendulum_with_damping_loses_what_the_damper_dissipates(erd_dir, 
     assert np.abs((E[0] - E) - work).max() <= 0.01 * E[0]
 
 
-@pytest.mark.parametrize("law, scheme", [("compliant", "velocity"), ("soft_constraint", "velocity"),
-                                         ("compliant", "momentum")])
-def test_rollout_is_the_single_step_repeated(cobra, law, scheme):
+@pytest.mark.parametrize("law, scheme, friction_step", [("compliant", "velocity", "explicit"),
+                                                        ("compliant", "velocity", "implicit"),
+                                                        ("soft_constraint", "velocity", "explicit"),
+                                                        ("compliant", "momentum", "explicit")])
+def test_rollout_is_the_single_step_repeated(cobra, law, scheme, friction_step):
     """``Simulator.rollout`` (one compiled call per step: the update in place, the sample, the
     next forces) gives exactly what ``Simulator.step`` gives step by step (separate force and
     update calls, out of place): the same states, and each sample's motor current is the one of
     the step before it. The servo ticks every 4th step, with a joint's motor off."""
-    settings = SimSettings(dt=1e-3, control_dt=4e-3, scheme=scheme)
+    settings = SimSettings(dt=1e-3, control_dt=4e-3, scheme=scheme, friction_step=friction_step)
     params = ModelParameters.nominal().with_contact_law(law)
     sim = Simulator(cobra, params, settings)
     gait = SidewindingGait(0.65)
