@@ -17,8 +17,9 @@ linearised from the same Dynamixel loop, reading a precomputed command table. Ou
   also set against MuJoCo on its elliptic cone (``cone="elliptic"``), the same contact
   problem (MuJoCo's default is the pyramid);
 - ``Simulator.rollout`` with the ``q_ref`` callable and the compliant ground's friction taken
-  implicitly (``SimSettings(friction_step="implicit")``, ``cobra simulate --friction-step
-  implicit``: the sign regularised at 1 mm/s), for what it costs (no target: not the default);
+  implicitly (``ModelParameters.with_friction_step("implicit")``, ``cobra simulate
+  --friction-step implicit``: the sign regularised at 1 mm/s), for what it costs (no target: not
+  the default);
 - the batched rollout of the objective (``BatchSimulator``), per environment-step;
 - the momentum-form step (``SimSettings(scheme="momentum")``, bounded energy error), on the
   core's path, for what it costs (no target: it is not the fits' step).
@@ -97,7 +98,7 @@ def main() -> None:
     soft = {law: Simulator(model, ModelParameters.nominal().with_contact_law(law))
             for law in ("soft_constraint", "soft_elliptic")}
     momentum = Simulator(model, settings=SimSettings(scheme="momentum"))
-    implicit = Simulator(model, settings=SimSettings(friction_step="implicit"))
+    implicit = Simulator(model, ModelParameters.nominal().with_friction_step("implicit"))
     st = sim.rest_state(gait.q_ref(0.0))
     reference = simulate_gait(gait, DURATION, model=model)
     paths = [

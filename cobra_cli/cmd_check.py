@@ -48,7 +48,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     if not (args.horizon > 0):
         raise InputError(f"--horizon must be a positive number of seconds, got {args.horizon}")
-    params = fit_start(args.params, args.contact, args.free, args.frozen, out=sys.stderr if args.json else sys.stdout)
+    params = fit_start(args.params, args.contact, args.free, args.frozen, out=sys.stderr if args.json else sys.stdout,
+                       friction_step=args.friction_step)
     train_paths, val_paths = expand(args.runs)
     if not train_paths:
         raise InputError(f"{', '.join(args.runs)}: no training runs")

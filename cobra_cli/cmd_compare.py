@@ -97,8 +97,9 @@ def run(args: argparse.Namespace) -> int:
     """Compare the runs (simulating the measured one if needed); print the report, draw the plots."""
     if not (np.isfinite(args.window) and args.window > 0):
         raise InputError(f"--window must be a positive number of seconds, got {args.window}")
-    if args.simulated is not None and (args.params is not None or args.contact is not None):
-        raise InputError("--params and --contact are only used when SIMULATED.csv is not given "
+    if args.simulated is not None and (args.params is not None or args.contact is not None
+                                       or args.friction_step is not None):
+        raise InputError("--params, --contact and --friction-step are only used when SIMULATED.csv is not given "
                          "(the measured run is then simulated with them)")
     paths = plot_paths(args.plots, args.force) if args.plots else None
     measured = read_run(args.measured)
@@ -108,7 +109,7 @@ def run(args: argparse.Namespace) -> int:
         inputs["simulated"] = str(simulated.source)
         heading = f"compare {measured.source} (measured) with {simulated.source} (simulated)"
     else:
-        params = load_params(args.params, args.contact)
+        params = load_params(args.params, args.contact, args.friction_step)
         with progress_bar("simulating") as bar:
             simulated = simulate_like(measured, params=params, progress=bar)
         inputs["simulated"] = None

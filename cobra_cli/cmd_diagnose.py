@@ -47,14 +47,15 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     return diagnose_to(args.out, args.runs, holdout=args.holdout, max_effects=args.max_effects, params=args.params,
                        contact_law=args.contact, free=args.free, fit_runs=args.fit_runs, force=args.force, check=not args.no_check,
-                       json_out=args.json, use_current=False if args.no_current else None)
+                       json_out=args.json, use_current=False if args.no_current else None,
+                       friction_step=args.friction_step)
 
 
 def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), max_effects: int = 2,
                 params: str | None = None, contact_law: str | None = None, free: str | None = None,
                 fit_runs: int = DiagnoseConfig.fit_runs,
                 force: bool = False, check: bool = True, json_out: bool = False,
-                use_current: bool | None = None) -> int:
+                use_current: bool | None = None, friction_step: str | None = None) -> int:
     """``cobra diagnose``'s work (also ``cobra demo``'s last step): the arguments are the command's
     options; writes ``OUTPUTS`` into ``out`` and prints the summary (or the JSON). Returns 0."""
     if out.exists() and not out.is_dir():
@@ -72,7 +73,8 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
     config = DiagnoseConfig(max_effects=max_effects, fit_runs=fit_runs, use_current=use_current)
     # with --json, stdout carries only the JSON
     starts, checks = law_starts(params, contact_law, free, None, train, held, check=check,
-                                out=sys.stderr if json_out else sys.stdout, weights=channel_weights([*train, *held], config))
+                                out=sys.stderr if json_out else sys.stdout, weights=channel_weights([*train, *held], config),
+                                friction_step=friction_step)
     from tqdm import tqdm
     bar = tqdm(desc="diagnose", unit="step", leave=False, disable=None)
 

@@ -102,7 +102,7 @@ def run(args: argparse.Namespace) -> int:
     validation = read_runs(val_paths)
     weights = Weights(use_current=args.current)
     starts, checks = law_starts(args.params, args.contact, args.free, args.frozen, train, validation,
-                                check=not args.no_check, weights=weights)
+                                check=not args.no_check, weights=weights, friction_step=args.friction_step)
     params = next(iter(starts.values()))
     executor = make_executor(args.executor, workers=args.workers, ray_address=args.ray_address)
     if choosing:

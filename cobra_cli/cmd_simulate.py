@@ -12,8 +12,7 @@ from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.run_files import read_run, write_run
 from integrators.simulate import simulate_gait, simulate_like
-from integrators.simulator import (FRICTION_STEPS, SCHEMES, STEPS_PER_CONTACT_TIME_CONSTANT, SimSettings, Simulator,
-                                  contact_resolved)
+from integrators.simulator import SCHEMES, STEPS_PER_CONTACT_TIME_CONSTANT, SimSettings, Simulator, contact_resolved
 from sysid.discrepancy.effects import EffectLibrary, parse_effects
 
 
@@ -35,10 +34,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scheme", choices=SCHEMES, default="velocity",
                    help="physics step: 'velocity' (semi-implicit Euler, the fits' step) or 'momentum' "
                         "(symplectic Euler on the momentum: bounded energy error, ~20x the cost) (default velocity)")
-    p.add_argument("--friction-step", choices=tuple(FRICTION_STEPS), default="explicit",
-                   help="how the step takes the compliant ground's friction: 'explicit' (sign regularised at "
-                        "1 cm/s, faithful to the Stribeck curve above 2.6 cm/s) or 'implicit' (Newton's method on "
-                        "the end slip, 1 mm/s, faithful above 2.6 mm/s; a few times the cost) (default explicit)")
     add_contact_option(p, "simulate")
     p.add_argument("--heading", type=float, default=0.0, help="initial heading [deg] (default 0)")
     p.add_argument("--rate", type=float, default=100.0, help="output sample rate [Hz] (default 100)")
@@ -51,17 +46,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run(args: argparse.Namespace) -> int:
     out = check_run_writable(args.out, args.force)
-    params = load_params(args.params, args.contact)
+    params = load_params(args.params, args.contact, args.friction_step)
     if args.effect:
         params = EffectLibrary().transform(params, parse_effects(args.effect), frozen=True)
     try:
         dt = SimSettings.dt if args.dt is None else args.dt
-        settings = SimSettings(dt=dt, control_dt=args.control_dt or dt, scheme=args.scheme,
-                               friction_step=args.friction_step)
+        settings = SimSettings(dt=dt, control_dt=args.control_dt or dt, scheme=args.scheme)
         if args.dt is None:
             settings = contact_resolved(settings, params)
     except ValueError as exc:
-        raise InputError(f"--dt/--control-dt/--scheme/--friction-step: {exc}") from None
+        raise InputError(f"--dt/--control-dt/--scheme: {exc}") from None
     if args.duration <= 0:
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
     sim = Simulator(CobraModel.load(), params, settings)

@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Sequence, TextIO
 
 from cobra_model.errors import InputError
-from cobra_model.parameters import CONTACT_LAWS, ModelParameters
+from cobra_model.parameters import CONTACT_LAWS, FRICTION_STEPS, ModelParameters
 from cobra_model.run import Run
 
 if TYPE_CHECKING:
@@ -16,17 +16,20 @@ if TYPE_CHECKING:
     from sysid.identification.objective import Weights
 
 
-def load_params(path: str | Path | None, contact_law: str | None = None) -> ModelParameters:
-    """The parameter file at ``path`` (nominal parameters when None), under ``contact_law`` if
-    given, else under the file's law (the nominal set's: compliant)."""
+def load_params(path: str | Path | None, contact_law: str | None = None,
+                friction_step: str | None = None) -> ModelParameters:
+    """The parameter file at ``path`` (nominal parameters when None), under ``contact_law`` and
+    ``friction_step`` if given, else under the file's (the nominal set's: compliant, explicit)."""
     params = ModelParameters.nominal() if path is None else ModelParameters.load(path)
-    return params if contact_law is None else params.with_contact_law(contact_law)
+    params = params if contact_law is None else params.with_contact_law(contact_law)
+    return params if friction_step is None else params.with_friction_step(friction_step)
 
 
 def fit_start(path: str | Path | None, contact_law: str | None, free: str | None, frozen: str | None = None,
-              out: TextIO | None = None) -> ModelParameters:
+              out: TextIO | None = None, friction_step: str | None = None) -> ModelParameters:
     """The starting parameters of ``cobra fit`` and ``cobra diagnose``: the parameter file (nominal
-    when None) under ``contact_law`` (the file's if None), ``--free``/``--frozen`` applied. Without
+    when None) under ``contact_law`` and ``friction_step`` (the file's if None),
+    ``--free``/``--frozen`` applied. Without
     ``--free`` the free set follows the law (``sysid.identification.contact_choice.free_for_law``),
     which is said on ``out`` (default: standard output).
 
@@ -35,7 +38,7 @@ def fit_start(path: str | Path | None, contact_law: str | None, free: str | None
     """
     from sysid.identification.contact_choice import free_for_law, unread_by_law
 
-    start = load_params(path, contact_law)
+    start = load_params(path, contact_law, friction_step)
     free_names, frozen_names = parse_names(free, "--free"), parse_names(frozen, "--frozen")
     try:
         params = start.with_frozen(frozen=frozen_names, free=free_names or None)
@@ -94,10 +97,12 @@ def _contact_value(text: str) -> str:
 
 def law_starts(path: str | Path | None, contact_law: str | None, free: str | None, frozen: str | None,
                train: Sequence[Run], held_out: Sequence[Run], *, check: bool, out: TextIO | None = None,
-               weights: Weights | None = None) -> tuple[dict[str, ModelParameters], dict[str, DataCheck | None]]:
+               weights: Weights | None = None, friction_step: str | None = None
+               ) -> tuple[dict[str, ModelParameters], dict[str, DataCheck | None]]:
     """The starting parameters of ``cobra fit`` and ``cobra diagnose`` per contact law they try:
     the laws :func:`chosen_laws` reads from ``--contact``, else the one law given (the
-    parameter file's when None), each from :func:`fit_start`, with the data check's frozen
+    parameter file's when None), each from :func:`fit_start` (under ``friction_step``, the
+    file's when None), with the data check's frozen
     parameters when ``check`` (run per law: each law frees its own ground parameters; on the
     channels of ``weights``, the objective's defaults when None). Returns
     (law -> start, law -> data check or None); findings go to ``out`` (default stdout).
@@ -116,7 +121,7 @@ def law_starts(path: str | Path | None, contact_law: str | None, free: str | Non
     starts: dict[str, ModelParameters] = {}
     checks: dict[str, DataCheck | None] = {}
     for law in laws if choosing else (listed_laws(contact_law)[0] if contact_law else None,):
-        start = fit_start(path, law, free, frozen, out=out)
+        start = fit_start(path, law, free, frozen, out=out, friction_step=friction_step)
         data_check = None
         if check:
             if choosing:
@@ -139,7 +144,14 @@ def start_lines(starts: Sequence[StartFit], fit: str = "") -> list[str]:
 def add_contact_option(p: argparse.ArgumentParser, what: str, choose: str = "") -> None:
     """``--contact LAW``: the contact law to {what} with, overriding the parameter file's; with
     ``choose`` (what choosing does, for the help), also ``--contact choose`` (every law) and a
-    comma-separated list of laws to choose among (:func:`chosen_laws`)."""
+    comma-separated list of laws to choose among (:func:`chosen_laws`). And ``--friction-step``,
+    how the compliant ground's friction is stepped, overriding the parameter file's."""
+    p.add_argument("--friction-step", choices=FRICTION_STEPS, default=None,
+                   help=f"how the compliant ground's friction is stepped to {what}: 'explicit' (its sign regularised "
+                        "at 1 cm/s: faithful to the Stribeck curve above 2.65 cm/s) or 'implicit' (at the step's end "
+                        "slip, the sign at 1 mm/s: faithful above 2.65 mm/s, below v_s's lower bound; a few times "
+                        "the cost) (default: the parameter file's, which a fit records; explicit for the nominal "
+                        "parameters)")
     laws = ("'compliant' (spring-damper ground, Stribeck friction), 'soft_constraint' (MuJoCo's default: a soft "
             "constraint on the friction pyramid, time constant from the parameter contact_time_constant) or "
             "'soft_elliptic' (the same on MuJoCo's elliptic friction cone)")

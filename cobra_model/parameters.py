@@ -138,6 +138,15 @@ _NOMINAL_BY_NAME: dict[str, Parameter] = {p.name: p for p in NOMINAL}
 #: because its ground values mean something only under that law.
 CONTACT_LAWS: tuple[str, ...] = ("compliant", "soft_constraint", "soft_elliptic")
 
+#: How the compliant ground's friction enters the step, with the speed its sign is regularised at:
+#: ``explicit``, at the step's start velocity with the sign at 1 cm/s (faithful to the Stribeck
+#: curve above 2.65 cm/s), or ``implicit``, at the step's end slip with the sign at 1 mm/s
+#: (faithful above 2.65 mm/s; ``integrators.kernels.implicit_friction_acceleration``). Like the
+#: contact law it is part of the model a parameter set was fitted with
+#: (:attr:`ModelParameters.friction_step`): below the faithful speed the two ground models creep
+#: and stick differently. The soft-constraint laws have no regularised sign and ignore it.
+FRICTION_STEPS: tuple[str, ...] = ("explicit", "implicit")
+
 #: Parameters that may be expanded to one value per joint.
 PER_JOINT_CAPABLE: tuple[str, ...] = ("armature", "joint_damping", "motor_km")
 
@@ -147,18 +156,23 @@ class ModelParameters:
 
     Values are read by name as attributes (``p.mu_c``) or with :meth:`value`; vectors contain
     only the free (not frozen) parameters, in table order. :attr:`contact_law` is the ground-contact
-    law (one of :data:`CONTACT_LAWS`) the values belong to; every derived set keeps it.
+    law (one of :data:`CONTACT_LAWS`) the values belong to and :attr:`friction_step` how the
+    compliant ground's friction is stepped (one of :data:`FRICTION_STEPS`); every derived set
+    keeps both.
 
     Raises:
-        InputError: for duplicate names, ``mu_s < mu_c`` or an unknown contact law.
+        InputError: for duplicate names, ``mu_s < mu_c``, an unknown contact law or friction step.
     """
 
-    __slots__ = ("_params", "_index", "contact_law")
+    __slots__ = ("_params", "_index", "contact_law", "friction_step")
 
-    def __init__(self, params: Iterable[Parameter], contact_law: str = "compliant"):
+    def __init__(self, params: Iterable[Parameter], contact_law: str = "compliant", friction_step: str = "explicit"):
         if contact_law not in CONTACT_LAWS:
             raise InputError(f"contact law must be one of {', '.join(CONTACT_LAWS)}, got {contact_law!r}")
+        if friction_step not in FRICTION_STEPS:
+            raise InputError(f"friction step must be one of {', '.join(FRICTION_STEPS)}, got {friction_step!r}")
         object.__setattr__(self, "contact_law", contact_law)
+        object.__setattr__(self, "friction_step", friction_step)
         object.__setattr__(self, "_params", tuple(params))
         index = {p.name: i for i, p in enumerate(self._params)}
         if len(index) != len(self._params):
@@ -191,7 +205,7 @@ class ModelParameters:
 
     def __reduce__(self) -> tuple:
         """Pickle as the constructor call (for process and Ray executors)."""
-        return (ModelParameters, (self._params, self.contact_law))
+        return (ModelParameters, (self._params, self.contact_law, self.friction_step))
 
     def __iter__(self) -> Iterator[Parameter]:
         return iter(self._params)
@@ -204,14 +218,14 @@ class ModelParameters:
 
     def __eq__(self, other: object) -> bool:
         return (isinstance(other, ModelParameters) and self._params == other._params
-                and self.contact_law == other.contact_law)
+                and self.contact_law == other.contact_law and self.friction_step == other.friction_step)
 
     def __hash__(self) -> int:
-        return hash((self._params, self.contact_law))
+        return hash((self._params, self.contact_law, self.friction_step))
 
     def __repr__(self) -> str:
         inner = ", ".join(f"{p.name}={p.value:.6g}" for p in self._params)
-        return f"ModelParameters({inner}, contact_law={self.contact_law!r})"
+        return f"ModelParameters({inner}, contact_law={self.contact_law!r}, friction_step={self.friction_step!r})"
 
     def __getitem__(self, name: str) -> Parameter:
         try:
@@ -261,12 +275,16 @@ class ModelParameters:
 
     # -- derived sets -------------------------------------------------------------------------
     def _derived(self, params: Iterable[Parameter]) -> "ModelParameters":
-        """A set of ``params`` under this set's contact law."""
-        return ModelParameters(params, self.contact_law)
+        """A set of ``params`` under this set's contact law and friction step."""
+        return ModelParameters(params, self.contact_law, self.friction_step)
 
     def with_contact_law(self, law: str) -> "ModelParameters":
         """A copy under contact law ``law`` (one of :data:`CONTACT_LAWS`), values unchanged."""
-        return ModelParameters(self._params, law)
+        return ModelParameters(self._params, law, self.friction_step)
+
+    def with_friction_step(self, step: str) -> "ModelParameters":
+        """A copy with friction step ``step`` (one of :data:`FRICTION_STEPS`), values unchanged."""
+        return ModelParameters(self._params, self.contact_law, step)
 
     def with_values(self, **values: float) -> "ModelParameters":
         """A copy with the given values (bounds are checked)."""
@@ -346,11 +364,12 @@ class ModelParameters:
 
     # -- files ------------------------------------------------------------------------------
     def to_json_dict(self) -> dict[str, Any]:
-        """The parameter-file object: ``{"format", "contact_law", "parameters": {name: {value, unit, min,
-        max, frozen, ...}}}``."""
+        """The parameter-file object: ``{"format", "contact_law", "friction_step", "parameters":
+        {name: {value, unit, min, max, frozen, ...}}}``."""
         return {
             "format": PARAMS_FORMAT,
             "contact_law": self.contact_law,
+            "friction_step": self.friction_step,
             "parameters": {
                 p.name: {
                     "value": p.value, "unit": p.unit, "min": p.min, "max": p.max,
@@ -363,12 +382,13 @@ class ModelParameters:
     @classmethod
     def from_json_dict(cls, data: Mapping[str, Any], *, source: str = "<parameters>") -> "ModelParameters":
         """Parse a parameter-file object; names not in the nominal table must give unit and bounds.
-        A file without ``contact_law`` (written before the law was recorded) is ``compliant``.
+        A file without ``contact_law`` (written before the law was recorded) is ``compliant``; one
+        without ``friction_step`` (written before 2026-12-04) is ``explicit``.
 
         Raises:
             InputError: naming ``source`` and the parameter, for a missing ``parameters`` object,
                 an unknown name without unit/bounds, a non-numeric or out-of-bound value, or an
-                unknown ``contact_law``.
+                unknown ``contact_law`` or ``friction_step``.
         """
         if not isinstance(data, Mapping) or not isinstance(data.get("parameters"), Mapping):
             raise InputError(f"{source}: expected a JSON object with a \"parameters\" object")
@@ -378,6 +398,9 @@ class ModelParameters:
         law = data.get("contact_law", "compliant")
         if law not in CONTACT_LAWS:
             raise InputError(f"{source}: \"contact_law\" is {law!r}, expected one of {', '.join(CONTACT_LAWS)}")
+        step = data.get("friction_step", "explicit")
+        if step not in FRICTION_STEPS:
+            raise InputError(f"{source}: \"friction_step\" is {step!r}, expected one of {', '.join(FRICTION_STEPS)}")
         known = {p.name: p for p in NOMINAL}
         params: list[Parameter] = []
         for name, entry in data["parameters"].items():
@@ -409,7 +432,7 @@ class ModelParameters:
             except InputError as exc:
                 raise InputError(f"{source}: {exc}") from None
         try:
-            return cls(params, law)
+            return cls(params, law, step)
         except InputError as exc:
             raise InputError(f"{source}: {exc}") from None
 

@@ -52,6 +52,9 @@ class BatchSimulator:
         laws = sorted({p.contact_law for p in params})
         if len(laws) > 1:
             raise InputError(f"a batch steps one contact law; the parameter sets have {', '.join(laws)}")
+        steps = sorted({p.friction_step for p in params})
+        if len(steps) > 1:
+            raise InputError(f"a batch steps one friction step; the parameter sets have {', '.join(steps)}")
         if settings is None:
             settings = min((contact_resolved(SimSettings(), p) for p in params), key=lambda s: s.dt)
         # environments given the same parameter set share its simulator (an objective passes one

@@ -547,7 +547,7 @@ N_PLAN = 5
 
 #: The contact laws' codes in :func:`rollout_loop` (the soft laws' from :data:`SOFT_LAWS`' cone;
 #: the compliant ground with its friction taken implicitly, :func:`implicit_friction_acceleration`,
-#: is a code of its own, not a law of :data:`LOOP_LAWS`: ``SimSettings.friction_step`` chooses it).
+#: is a code of its own, not a law of :data:`LOOP_LAWS`: a parameter set's ``friction_step`` chooses it).
 LAW_COMPLIANT, LAW_SOFT_PYRAMID, LAW_SOFT_ELLIPTIC, LAW_COMPLIANT_IMPLICIT = 0, 1, 2, 3
 LOOP_LAWS: dict[str, int] = {"compliant": LAW_COMPLIANT,
                              **{law: LAW_SOFT_ELLIPTIC if elliptic else LAW_SOFT_PYRAMID
@@ -1399,7 +1399,7 @@ def implicit_friction_acceleration(v, Minv, floating, parents, vidx, f_body, X, 
     Why: the law's slope reaches ``s F_z / eps`` at rest, a stiffness the explicit step
     resolves only when ``dt c_i`` is small next to the contact's effective mass; taken
     implicitly it is stable at any ``eps``, so the sign can be regularised below the Stribeck
-    velocity's lower bound (``SimSettings.friction_step``). One linearised step (no Newton
+    velocity's lower bound (``ModelParameters.friction_step``). One linearised step (no Newton
     iteration) is stable too, but it holds a contact that breaks away to a slip of about
     ``eps`` more per step: at 1 ms steps and ``eps`` = 1 mm/s a yaw joint lagged the
     converged step by up to 30 mrad.

@@ -20,7 +20,7 @@ from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
 from cobra_model.run import Q_REF_BETWEEN_SAMPLES, Run
-from integrators.simulator import SimSettings, SimState, Simulator, Trajectory
+from integrators.simulator import SimSettings, SimState, Simulator, Trajectory, friction_eps
 
 #: Bodies a simulated run reports besides the head (the paper tracked the head, link 6 and the tail).
 TRACKED_BODIES: tuple[str, ...] = ("link_6", "tail")
@@ -153,8 +153,7 @@ def trajectory_to_run(model: CobraModel, traj: Trajectory, t_out: np.ndarray | N
 def _meta(params: ModelParameters, settings: SimSettings, gait: dict | None, notes: str) -> dict:
     meta = {"format": "cobra-run/1", "source": "simulation", "params": params.to_json_dict(),
             "sim_settings": {"dt": settings.dt, "control_dt": settings.control_dt,
-                             "sgn_eps": settings.friction_eps, "scheme": settings.scheme,
-                             "friction_step": settings.friction_step}, "notes": notes}
+                             "sgn_eps": friction_eps(params, settings), "scheme": settings.scheme}, "notes": notes}
     if gait is not None:
         meta["gait"] = gait
     return meta

@@ -8,7 +8,7 @@ One physics step of length ``dt``::
     q+ = pin.integrate(q, dt * v+)                                # on the configuration manifold
 
 All forces are evaluated explicitly at (q, v) by default; the step is the symplectic Euler of
-the issue. ``SimSettings(friction_step="implicit")`` takes the ground's friction at the step's
+the issue. A parameter set's ``friction_step="implicit"`` takes the ground's friction at the step's
 end slip instead (:func:`integrators.kernels.implicit_friction_acceleration`), so that its sign
 can be regularised at 1 mm/s rather than 1 cm/s. In the explicit step what bounds the stable
 step would be the stiffest dissipative term, the regularised Coulomb friction ``s F_z / eps``
@@ -165,11 +165,11 @@ class ServoGains:
 
 #: The physics steps :class:`SimSettings` offers.
 SCHEMES = ("velocity", "momentum")
-#: How the velocity step takes the compliant ground's friction, with the default sign
-#: regularisation velocity [m/s] of each (:attr:`SimSettings.friction_eps`).
-FRICTION_STEPS = {"explicit": 0.01, "implicit": 0.001}
+#: The friction sign's regularisation velocity [m/s] of each friction step
+#: (:data:`cobra_model.parameters.FRICTION_STEPS`), unless ``SimSettings.sgn_eps`` sets another.
+FRICTION_EPS: dict[str, float] = {"explicit": 0.01, "implicit": 0.001}
 #: How close [fraction] the regularised sign ``tanh(u / eps)`` comes to ``sign(u)`` above
-#: :attr:`SimSettings.faithful_slip`.
+#: :attr:`Simulator.faithful_slip`.
 SIGN_TOLERANCE = 0.01
 
 
@@ -183,20 +183,16 @@ class SimSettings:
         gains: servo position-loop gains.
         voltage: motor supply voltage [V].
         sgn_eps: friction sign regularisation velocity [m/s] (see ``ground_forces``); None:
-            the default of ``friction_step`` (:data:`FRICTION_STEPS`, :attr:`friction_eps`).
+            the parameter set's friction step's (:data:`FRICTION_EPS`).
         joint_coulomb_eps: joint Coulomb friction regularisation [rad/s].
         max_depth: penetration [m] beyond which the run is declared diverged.
         max_speed: generalized speed [m/s or rad/s] beyond which the run is declared diverged.
         scheme: ``"velocity"`` (the step above; batched fits use it) or ``"momentum"``
             (:mod:`integrators.momentum_step`: symplectic Euler on the momentum, bounded energy
             error, about 20 times the cost; single rollouts only).
-        friction_step: how the velocity step takes the compliant ground's friction:
-            ``"explicit"`` at the step's start velocity (the sign's slope ``s F_z / eps`` must
-            be resolved by ``dt``, hence ``eps`` = 1 cm/s), or ``"implicit"``, linearised at its
-            end velocity (:func:`integrators.kernels.implicit_friction_acceleration`: stable at
-            ``eps`` = 1 mm/s, so the model is faithful to the Stribeck curve above
-            :attr:`faithful_slip` = 2.6 mm/s, below the Stribeck velocity's lower bound; about
-            twice the step's cost). The soft-constraint laws ignore it.
+
+    How the compliant ground's friction is stepped is the parameter set's
+    (:attr:`cobra_model.parameters.ModelParameters.friction_step`): it is part of the model.
     """
 
     dt: float = 1e-3
@@ -208,17 +204,12 @@ class SimSettings:
     max_depth: float = 0.03
     max_speed: float = 100.0
     scheme: str = "velocity"
-    friction_step: str = "explicit"
 
     def __post_init__(self) -> None:
         if not self.dt > 0:
             raise ValueError(f"dt must be > 0 s, got {self.dt}")
         if self.scheme not in SCHEMES:
             raise ValueError(f"scheme must be one of {', '.join(SCHEMES)}, got {self.scheme!r}")
-        if self.friction_step not in FRICTION_STEPS:
-            raise ValueError(f"friction_step must be one of {', '.join(FRICTION_STEPS)}, got {self.friction_step!r}")
-        if self.friction_step == "implicit" and self.scheme != "velocity":
-            raise ValueError(f"friction_step 'implicit' is a velocity-scheme step, got scheme {self.scheme!r}")
         if self.sgn_eps is not None and not self.sgn_eps > 0:
             raise ValueError(f"sgn_eps must be > 0 m/s, got {self.sgn_eps}")
         ratio = self.control_dt / self.dt
@@ -232,17 +223,19 @@ class SimSettings:
         """Physics steps per control tick."""
         return int(round(self.control_dt / self.dt))
 
-    @property
-    def friction_eps(self) -> float:
-        """The friction sign's regularisation velocity [m/s]: ``sgn_eps``, or ``friction_step``'s default."""
-        return FRICTION_STEPS[self.friction_step] if self.sgn_eps is None else self.sgn_eps
 
-    @property
-    def faithful_slip(self) -> float:
-        """The slip speed [m/s] below which the regularised sign ``tanh(u / eps)`` falls more than
-        :data:`SIGN_TOLERANCE` short of ``sign(u)``: the model is faithful to a Stribeck curve
-        (``v_s``) only above it (``eps atanh(0.99)`` = 2.65 ``eps``)."""
-        return float(self.friction_eps * np.arctanh(1.0 - SIGN_TOLERANCE))
+
+def friction_eps(params: ModelParameters, settings: SimSettings) -> float:
+    """The friction sign's regularisation velocity [m/s]: ``settings.sgn_eps``, or that of
+    ``params``' friction step (:data:`FRICTION_EPS`)."""
+    return FRICTION_EPS[params.friction_step] if settings.sgn_eps is None else settings.sgn_eps
+
+
+def faithful_slip(eps: float) -> float:
+    """The slip speed [m/s] below which the sign regularised at ``eps`` [m/s], ``tanh(u / eps)``,
+    falls more than :data:`SIGN_TOLERANCE` short of ``sign(u)``: a model is faithful to a
+    Stribeck curve (``v_s``) only above it (``eps atanh(0.99)`` = 2.65 ``eps``)."""
+    return float(eps * np.arctanh(1.0 - SIGN_TOLERANCE))
 
 
 #: Physics steps per soft-contact time constant at the least (:func:`contact_resolved`).
@@ -335,17 +328,24 @@ class Simulator:
     (:func:`integrators.kernels.soft_elliptic_acceleration`); both with sliding friction
     ``mu_c`` along the body and ``lateral_friction_ratio`` x ``mu_c`` sideways, no Stribeck or
     viscous term, ``k1``/``k2`` unused, their time constant the parameter ``contact_time_constant``;
-    velocity-form steps only, about twice the cost.
+    velocity-form steps only, about twice the cost. The compliant ground's friction is stepped
+    as the parameter set says (``params.friction_step``): at the step's start velocity with its
+    sign regularised at 1 cm/s (``"explicit"``), or at the step's end slip with the sign at
+    1 mm/s (``"implicit"``, :func:`integrators.kernels.implicit_friction_acceleration`: stable at
+    any ``eps``; velocity-form steps only, a few times the cost), so that the model is faithful to
+    the Stribeck curve above :attr:`faithful_slip`, 2.65 cm/s or 2.65 mm/s (``v_s``'s lower
+    bound is 5 mm/s).
 
     Args:
         model: the robot (COBRA or any URDF loaded by :class:`RobotModel`).
-        params: physical parameters (actuator, ground, optional effects) and the contact law.
+        params: physical parameters (actuator, ground, optional effects), the contact law and
+            the friction step.
         settings: numerical settings (default: :class:`SimSettings`' with a step that resolves a
             soft contact's time constant, :func:`contact_resolved`; given settings are kept).
 
     Raises:
-        InputError: the soft-constraint law with the momentum scheme, or a contact time
-            constant shorter than two steps.
+        InputError: the soft-constraint law or the implicit friction step with the momentum
+            scheme, or a contact time constant shorter than two steps.
     """
 
     def __init__(self, model: RobotModel, params: ModelParameters | None = None,
@@ -366,7 +366,11 @@ class Simulator:
         ground = np.zeros(K.N_GROUND)
         for name, slot in K.GROUND_PARAMETERS.items():
             ground[slot] = effect_value(p, name)
-        ground[K.G_EPS] = s.friction_eps
+        #: the friction sign's regularisation velocity [m/s] and the slip above which the model is
+        #: faithful to its Stribeck curve
+        self.friction_eps = friction_eps(p, s)
+        self.faithful_slip = faithful_slip(self.friction_eps)
+        ground[K.G_EPS] = self.friction_eps
         self.contact_law = p.contact_law
         if self.contact_law in K.SOFT_LAWS:
             if s.scheme != "velocity":
@@ -380,8 +384,10 @@ class Simulator:
         self.ground = ground
         #: the compiled loop's law code (:data:`integrators.kernels.LOOP_LAWS`, or the compliant
         #: ground with its friction taken implicitly)
-        self.loop_law = (K.LAW_COMPLIANT_IMPLICIT if self.contact_law == "compliant" and s.friction_step == "implicit"
+        self.loop_law = (K.LAW_COMPLIANT_IMPLICIT if self.contact_law == "compliant" and p.friction_step == "implicit"
                          else K.LOOP_LAWS[self.contact_law])
+        if self.loop_law == K.LAW_COMPLIANT_IMPLICIT and s.scheme != "velocity":
+            raise InputError(f"the implicit friction step is a velocity-scheme step, got scheme {s.scheme!r}")
         act = np.zeros((n, K.N_ACT))
         for name, slot in K.ACTUATOR_PARAMETERS.items():
             act[:, slot] = per_joint(name)

@@ -11,15 +11,15 @@ from cobra_model import ModelParameters, SidewindingGait
 from cobra_model.errors import InputError
 from integrators import kernels as K
 from integrators.batch import BatchSimulator
-from integrators.simulator import SimSettings, SimulationDiverged
+from integrators.simulator import SimulationDiverged
 from sysid.discrepancy.effects import EffectLibrary
 
 
 @pytest.mark.parametrize("friction_step", ["explicit", "implicit"])
 def test_batch_matches_single_rollouts(cobra, friction_step):
-    params = [ModelParameters.nominal().with_values(mu_c=mu, mu_s=0.45, k2=k2)
+    params = [ModelParameters.nominal().with_values(mu_c=mu, mu_s=0.45, k2=k2).with_friction_step(friction_step)
               for mu, k2 in ((0.2, 20.0), (0.3, 30.0), (0.4, 60.0))]
-    batch = BatchSimulator(cobra, params, SimSettings(friction_step=friction_step), threads=2)
+    batch = BatchSimulator(cobra, params, threads=2)
     gait = SidewindingGait(0.5)
     table = gait.q_ref(np.arange(1001) * 1e-3)
     states = [s.rest_state(heading_rad=h) for s, h in zip(batch.sims, (0.0, 1.0, 2.0))]

@@ -48,7 +48,7 @@ def test_free_flight_with_gravity_energy_bounded(cobra):
 @pytest.mark.parametrize("friction_step", ["explicit", "implicit"])
 def test_dissipation_never_adds_energy(cobra, friction_step):
     """Ground + damping, no actuation: energy never rises above the integrator's bound."""
-    sim = Simulator(cobra, ModelParameters.nominal(), SimSettings(friction_step=friction_step))
+    sim = Simulator(cobra, ModelParameters.nominal().with_friction_step(friction_step))
     rng = np.random.default_rng(3)
     rest = sim.rest_state(rng.uniform(-0.5, 0.5, 11))
     st = sim.state(rest.q + np.r_[0, 0, 0.1, np.zeros(15)], rng.normal(0, 0.5, cobra.nv))
@@ -80,7 +80,7 @@ def test_dropped_snake_rests_at_expected_penetration(cobra):
 
 @pytest.mark.parametrize("friction_step", ["explicit", "implicit"])
 def test_resting_snake_does_not_creep(cobra, friction_step):
-    sim = Simulator(cobra, settings=SimSettings(friction_step=friction_step))
+    sim = Simulator(cobra, ModelParameters.nominal().with_friction_step(friction_step))
     st = sim.rest_state()
     tr = sim.rollout(st, np.zeros((1, 11)), 10.0, record_every=1000)
     drift = np.linalg.norm(tr.q[-1, :2] - tr.q[0, :2])
@@ -167,8 +167,8 @@ def test_double_pendulum_conserves_energy(erd_dir):
 def test_solo_dropped_on_ground_settles_passively(erd_dir, friction_step):
     model = solo(erd_dir)
     assert len(model.features) >= 4
-    params = ModelParameters.nominal().with_values(joint_damping=0.05, armature=1e-3)
-    sim = Simulator(model, params, SimSettings(dt=5e-4, control_dt=5e-4, friction_step=friction_step))
+    params = ModelParameters.nominal().with_values(joint_damping=0.05, armature=1e-3).with_friction_step(friction_step)
+    sim = Simulator(model, params, SimSettings(dt=5e-4, control_dt=5e-4))
     q = model.configuration(np.tile([0.8, -1.6], 4), np.array([0, 0, 0.35]))
     tr = sim.rollout(sim.state(q), np.zeros((1, 8)), 2.0, record_every=20, torque_on=np.zeros(8, bool))
     E = np.array([energy(sim.model, q_, v_) for q_, v_ in zip(tr.q, tr.v)])
@@ -216,8 +216,8 @@ def test_rollout_is_the_single_step_repeated(cobra, law, scheme, friction_step):
     next forces) gives exactly what ``Simulator.step`` gives step by step (separate force and
     update calls, out of place): the same states, and each sample's motor current is the one of
     the step before it. The servo ticks every 4th step, with a joint's motor off."""
-    settings = SimSettings(dt=1e-3, control_dt=4e-3, scheme=scheme, friction_step=friction_step)
-    params = ModelParameters.nominal().with_contact_law(law)
+    settings = SimSettings(dt=1e-3, control_dt=4e-3, scheme=scheme)
+    params = ModelParameters.nominal().with_contact_law(law).with_friction_step(friction_step)
     sim = Simulator(cobra, params, settings)
     gait = SidewindingGait(0.65)
     start = sim.rest_state(gait.q_ref(0.0))
