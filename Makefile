@@ -34,6 +34,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/run_io.py
 	$(PY) benchmarks/fit_speed.py
 	$(PY) benchmarks/recovery.py
+	$(PY) benchmarks/stribeck_fidelity.py
 	$(PY) benchmarks/interval_coverage.py
 	$(PY) benchmarks/diagnose_accuracy.py
 	$(PY) benchmarks/mujoco_robustness.py
