@@ -41,6 +41,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"    {name:9s} {kind:5s} range +-{np.rad2deg(lim.upperPositionLimit[iq]):.0f} deg, "
               f"effort {lim.effortLimit[iv]:.2f} N m, velocity {lim.velocityLimit[iv]:.3f} rad/s")
     print(f"  servo: XH540-W270, {servo.SERVO_GEAR_RATIO}:1, {servo.SUPPLY_VOLTAGE_V} V supply")
+    print(f"  ground: {params.contact_law} contact law, {params.friction_step} friction step")
     print("  parameters:")
     print(f"    {'name':22s} {'value':>11s} {'unit':10s} {'min':>10s} {'max':>10s}  frozen  meaning")
     for prm in params:
