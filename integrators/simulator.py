@@ -224,7 +224,6 @@ class SimSettings:
         return int(round(self.control_dt / self.dt))
 
 
-
 def friction_eps(params: ModelParameters, settings: SimSettings) -> float:
     """The friction sign's regularisation velocity [m/s]: ``settings.sgn_eps``, or that of
     ``params``' friction step (:data:`FRICTION_EPS`)."""
