@@ -268,6 +268,25 @@ def ground_tangent(R, b):
 
 
 @njit(cache=True, inline="always")
+def contact_friction(v1, v2, fz, mu_c, mu_s, mu_v, v_s, eps, lateral, cone):
+    """The Stribeck friction law of :func:`ground_forces` at one contact: the forces ``f1, f2``
+    [N] along its tangents ``t1, t2`` at the slip ``v1, v2`` [m/s] under the normal force ``fz``
+    [N], and their dissipative slopes ``c1, c2`` [N s/m],
+    ``c_i = s_i F_z w_i (1 - tanh^2(v_i / eps)) / eps + mu_v`` (the Stribeck shape's and the
+    cone weights' derivatives left out: :func:`implicit_friction_acceleration`'s Newton steps).
+
+    Returns:
+        ``(f1, c1, f2, c2)``.
+    """
+    s1 = mu_c - (mu_c - mu_s) * np.exp(-(v1 / v_s) ** 2)
+    s2 = lateral * (mu_c - (mu_c - mu_s) * np.exp(-(v2 / v_s) ** 2))
+    w1, w2 = cone_weights(v1, v2, eps, cone)
+    t1, t2 = np.tanh(v1 / eps), np.tanh(v2 / eps)
+    return (-s1 * fz * w1 * t1 - mu_v * v1, s1 * fz * w1 * (1.0 - t1 * t1) / eps + mu_v,
+            -s2 * fz * w2 * t2 - mu_v * v2, s2 * fz * w2 * (1.0 - t2 * t2) / eps + mu_v)
+
+
+@njit(cache=True, inline="always")
 def ground_forces(q, v, floating, chain_i, chain_R, chain_f, feat_i, feat_f, ground, tau, X, F, max_depth, kin_R,
                   kin_v):
     """Stribeck ground (paper Eqs. 3-6) on every contact feature, accumulated as ``J^T F``.
@@ -281,7 +300,7 @@ def ground_forces(q, v, floating, chain_i, chain_R, chain_f, feat_i, feat_f, gro
     Normal: ``F_z = max(0, -k1 p_z - k2 pdot_z)`` below ground, 0 above (no adhesion).
     Tangential, per component ``i`` of the contact velocity in the contact's ground frame
     (``t1`` = the body's x axis projected on the ground, ``t2 = z x t1``):
-    ``F_i = -s_i F_z sgn_eps(pdot_i) - mu_v pdot_i`` with
+    ``F_i = -s_i F_z sgn_eps(pdot_i) - mu_v pdot_i`` (:func:`contact_friction`) with
     ``s_i = mu_c - (mu_c - mu_s) exp(-pdot_i^2 / v_s^2)``, the lateral (``t2``) component's
     ``s`` multiplied by ``ground[G_LATERAL]`` (1 = isotropic, the paper's model), and each
     Coulomb/Stribeck term weighted by :func:`cone_weights` with the friction-cone shape
@@ -349,11 +368,7 @@ def ground_forces(q, v, floating, chain_i, chain_R, chain_f, feat_i, feat_f, gro
         t1x, t1y = ground_tangent(R, b)
         v1 = xv0 * t1x + xv1 * t1y
         v2 = -xv0 * t1y + xv1 * t1x
-        s1 = mu_c - (mu_c - mu_s) * np.exp(-(v1 / v_s) ** 2)
-        s2 = lateral * (mu_c - (mu_c - mu_s) * np.exp(-(v2 / v_s) ** 2))
-        w1, w2 = cone_weights(v1, v2, eps, cone)
-        f1 = -s1 * fz * w1 * np.tanh(v1 / eps) - mu_v * v1
-        f2 = -s2 * fz * w2 * np.tanh(v2 / eps) - mu_v * v2
+        f1, _, f2, _ = contact_friction(v1, v2, fz, mu_c, mu_s, mu_v, v_s, eps, lateral, cone)
         fx = f1 * t1x - f2 * t1y
         fy = f1 * t1y + f2 * t1x
         F[k, 0], F[k, 1], F[k, 2] = fx, fy, fz
@@ -1359,21 +1374,6 @@ def friction_scratch(n_features: int, nv: int):
             np.empty((9, m)))
 
 
-@njit(cache=True, inline="always")
-def _tangent_friction(u, other, fz, mu_c, mu_s, mu_v, v_s, eps, lateral, cone, sideways):
-    """The friction force [N] along one tangent axis at slip ``u`` [m/s] (``other`` the slip
-    along the contact's other axis, for the cone's weights) and its dissipative slope ``c``
-    [N s/m]: :func:`ground_forces`' law, ``lateral`` applied when ``sideways``."""
-    s = mu_c - (mu_c - mu_s) * np.exp(-(u / v_s) ** 2)
-    if sideways:
-        s *= lateral
-        w = cone_weights(other, u, eps, cone)[1]
-    else:
-        w = cone_weights(u, other, eps, cone)[0]
-    t = np.tanh(u / eps)
-    return -s * fz * w * t - mu_v * u, s * fz * w * (1.0 - t * t) / eps + mu_v
-
-
 @njit(cache=True)
 def implicit_friction_acceleration(v, Minv, floating, parents, vidx, f_body, X, F, kin_R, kin_v, ground, dt, a,
                                    scratch):
@@ -1459,9 +1459,8 @@ def implicit_friction_acceleration(v, Minv, floating, parents, vidx, f_body, X, 
             W[i, j] = acc
             W[j, i] = acc
     for i in range(0, n, 2):
-        f0[i], c[i] = _tangent_friction(u[i], u[i + 1], fz[i], mu_c, mu_s, mu_v, v_s, eps, lateral, cone, False)
-        f0[i + 1], c[i + 1] = _tangent_friction(u[i + 1], u[i], fz[i], mu_c, mu_s, mu_v, v_s, eps, lateral, cone,
-                                                True)
+        f0[i], c[i], f0[i + 1], c[i + 1] = contact_friction(u[i], u[i + 1], fz[i], mu_c, mu_s, mu_v,
+                                                            v_s, eps, lateral, cone)
     for i in range(n):
         acc = 0.0
         for col in range(nv):
@@ -1500,9 +1499,8 @@ def implicit_friction_acceleration(v, Minv, floating, parents, vidx, f_body, X, 
         for i in range(n):
             u[i] += alpha * p[i]
         for i in range(0, n, 2):
-            f[i], c[i] = _tangent_friction(u[i], u[i + 1], fz[i], mu_c, mu_s, mu_v, v_s, eps, lateral, cone, False)
-            f[i + 1], c[i + 1] = _tangent_friction(u[i + 1], u[i], fz[i], mu_c, mu_s, mu_v, v_s, eps, lateral, cone,
-                                                   True)
+            f[i], c[i], f[i + 1], c[i + 1] = contact_friction(u[i], u[i + 1], fz[i], mu_c, mu_s, mu_v,
+                                                              v_s, eps, lateral, cone)
         if alpha >= 1.0 and step <= FRICTION_NEWTON_TOLERANCE * eps:
             break
     for col in range(nv):
