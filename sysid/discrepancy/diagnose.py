@@ -74,7 +74,7 @@ from sysid.identification.lockstep import Evaluate, Steps, run_together
 from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq_steps, forward_steps, retake_diverged
 from sysid.identification.objective import SENSOR_NOISE, Objective, Weights, runs_without_current
 from sysid.identification.splits import spread_over_gaits
-from sysid.gap.report import GapSummary, HeldOut, head_text, pair_held_out
+from sysid.gap.report import GapSummary, HeldOut, has_head_errors, head_text, pair_held_out
 from sysid.discrepancy.signature import Signature, localise
 
 
@@ -319,9 +319,7 @@ def head_grew(before: GapSummary, after: GapSummary) -> bool:
     named effect that explains the joints while the head path moves further off, the mark of a
     difference (most often the ground's) that no library effect closes. False on joint-only runs."""
     b, a = before.head_final_error_m, after.head_final_error_m
-    if b is None or a is None or not (np.isfinite(b) and np.isfinite(a)):
-        return False
-    return a - b > max(HEAD_GROWTH_FLOOR_M, 0.1 * b)
+    return has_head_errors(b, a) and a - b > max(HEAD_GROWTH_FLOOR_M, 0.1 * b)
 
 
 def verdict(d: Diagnosis) -> str:

@@ -92,9 +92,14 @@ def pair_held_out(runs: Sequence[Run], before: Sequence[Run], after: Sequence[Ru
     return out
 
 
+def has_head_errors(before: float | None, after: float | None) -> bool:
+    """Whether both final head errors [m] exist (joint-only runs give None or NaN)."""
+    return before is not None and after is not None and bool(np.isfinite(before) and np.isfinite(after))
+
+
 def head_text(before: float | None, after: float | None) -> str:
     """``"0.0123 -> 0.0045 m"``, or why there is no head error (joint-only runs: None or NaN)."""
-    if before is None or after is None or not (np.isfinite(before) and np.isfinite(after)):
+    if not has_head_errors(before, after):
         return "omitted (joint-only runs: no head pose)"
     return f"{before:.4f} -> {after:.4f} m"
 
