@@ -7,11 +7,11 @@ diagnosed with the nominal model (``mu_c``, ``joint_damping`` and ``motor_km`` f
 off). Also diagnoses the shipped reference dataset. ``--detection-limit`` instead halves each
 effect's magnitude (its distance from the inactive value) until the workflow no longer names it
 first (one round per diagnosis), then bisects between the last magnitude named and the first
-missed, and gives where the limit lies. The data seed 3 was used while the workflow was
-developed (:data:`DEV_SEEDS`); the reported figures come from ``--seeds`` (default 41), and the
+missed, and gives where the limit lies. The data seeds 3 and 41 were used while the workflow was
+developed (:data:`DEV_SEEDS`); the reported figures come from ``--seeds`` (default 42), and the
 script refuses a development seed. Tables: ``benchmarks/results/diagnose_accuracy.{json,md}``
 (``diagnose_detection_limit.*`` with ``--detection-limit``), also printed; progress to stderr.
-Run: ``.venv/bin/python benchmarks/diagnose_accuracy.py [--seeds 41,...] [--cases NAME,...]
+Run: ``.venv/bin/python benchmarks/diagnose_accuracy.py [--seeds 42,...] [--cases NAME,...]
 [--detection-limit [--halvings N] [--bisections N]]``.
 """
 from __future__ import annotations
@@ -38,8 +38,10 @@ MAGNITUDES = {e.name: e.realistic for e in LIBRARY}
 #: Effects hidden together.
 PAIRS = ("joint_coulomb_friction+anisotropic_ground_friction", "actuator_delay+link_mass_error")
 FREE = ["mu_c", "joint_damping", "motor_km"]
-#: Data seeds used while the workflow was developed: never reported.
-DEV_SEEDS = (3,)
+#: Data seeds used while the workflow was developed: never reported. Seed 41 was the reported seed
+#: until 2026-12-04, when its torque-limit case showed the refit after naming stopping short from
+#: far starts (``sysid.discrepancy.diagnose.final_refit``) and was studied to fix it.
+DEV_SEEDS = (3, 41)
 
 
 def make_data(effects: dict[str, float], seed: int):
@@ -171,7 +173,7 @@ def detection_limit(names: list[str], halvings: int, bisections: int, seed: int)
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", default="41", help="comma-separated data seeds (default 41; the first one "
+    parser.add_argument("--seeds", default="42", help="comma-separated data seeds (default 42; the first one "
                         "for --detection-limit)")
     parser.add_argument("--cases", default=None,
                         help="comma-separated: effect names, NAME+NAME pairs, 'none', 'reference' (default: all)")
