@@ -401,6 +401,12 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-12-03T20:28", "e752a5d", "the delay, offset and payload cases",
      ("mujoco_robustness", "mujoco_robustness_current", "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff",
       "mujoco_robustness_stiff_current")),
+    # the refit after naming a torque limit: its starts at the unbent motor and at the base fit's
+    # start fitted over the horizon's continuation (every diagnosis naming a limit may end elsewhere)
+    ("2026-12-04T20:49", "1c38882", "the refit after naming a torque limit over the horizon's continuation",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
 )
 
 
