@@ -8,12 +8,11 @@ from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.generators.dataset import RunPlan, record
 from sysid.discrepancy.diagnose import (PROFILE_HORIZON_S, SCREEN_HORIZON_S, DiagnoseConfig, _capped, _cost_steps,
-                                        channel_weights, final_refit, screening_bases, screening_start, torque_demand,
-                                        unbent)
+                                        final_refit, screening_bases, screening_start, torque_demand, unbent)
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.identification.lockstep import run
 from sysid.identification.lsq import fit_lsq
-from sysid.identification.objective import Objective
+from sysid.identification.objective import Objective, Weights
 
 LIBRARY = EffectLibrary()
 FREE = ["mu_c", "joint_damping", "motor_km"]
@@ -88,11 +87,8 @@ def test_the_refit_after_naming_a_limit_reaches_the_truth_from_the_bent_motor():
     bent = fit_lsq(Objective(runs, NOMINAL)).params
     assert bent.value("joint_damping") > 2 * TRUTH.value("joint_damping")   # the motor bent to mimic the limit
     candidate = LIBRARY.transform(bent, {"torque_saturation": 2.54}).with_frozen(free=[*FREE, "torque_limit"])
-    weights = channel_weights(runs, DiagnoseConfig())
-    fit = final_refit(candidate, bent, NOMINAL, runs, weights, DiagnoseConfig(), LIBRARY["torque_saturation"])
-    r = Objective(runs, fit.params, weights).residuals(
-        fit.params.with_values(**{n: truth.value(n) for n in fit.params.free_names}).as_vector()[None])[0]
-    assert fit.cost < 1.2 * float(r @ r)
+    fit = final_refit(candidate, bent, NOMINAL, runs, Weights(), DiagnoseConfig(), LIBRARY["torque_saturation"])
+    assert fit.cost < 1.2 * cost(runs, fit.params.with_values(**{n: truth.value(n) for n in fit.params.free_names}))
     assert fit.params.value("torque_limit") == pytest.approx(2.5, rel=0.01)
     assert fit.params.value("joint_damping") == pytest.approx(TRUTH.value("joint_damping"), rel=0.1)
     assert fit.params.value("motor_km") == pytest.approx(TRUTH.value("motor_km"), rel=0.03)

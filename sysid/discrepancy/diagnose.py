@@ -71,7 +71,8 @@ from integrators.simulator import Simulator
 from sysid.discrepancy.effects import Effect, EffectLibrary
 from sysid.identification.contact_choice import BASIN_PARAMETERS, StartFit, fit_from_shapes, fit_starts
 from sysid.identification.lockstep import Evaluate, Steps, run_together
-from sysid.identification.lsq import FD_STEP, FitResult, feasible, fit_lsq_steps, forward_steps, retake_diverged
+from sysid.identification.lsq import (DEFAULT_HORIZONS_S, FD_STEP, FitResult, feasible, fit_lsq_steps, forward_steps,
+                                     retake_diverged)
 from sysid.identification.objective import SENSOR_NOISE, Objective, Weights, runs_without_current
 from sysid.identification.splits import spread_over_gaits
 from sysid.gap.report import GapSummary, HeldOut, has_head_errors, head_text, pair_held_out
@@ -820,19 +821,16 @@ def final_refit(candidate: ModelParameters, current: ModelParameters, origin: Mo
     2 ms the best refit reached 3.4 ms (training cost 217, held-out head 36 mm); from the base
     fit's 20 ms it reaches 24 ms (ratio 2.08 for 2.0, limit 2.55 for 2.5 N m, head 5.7 mm).
     """
-    starts = [candidate]
+    starts = [(candidate, ())]  # (start, horizons of its continuation): () fits the whole runs only
     basin = {n: current.value(n) for n in BASIN_PARAMETERS
              if n in candidate.free_names and candidate.value(n) != current.value(n)}
     if basin:
-        starts.append(candidate.with_values(**basin))
-    far = []  # starts put back where the base fit started: the horizon's continuation leads them
-    if effect.bends:
-        far = [unbent(effect, candidate, origin),
-               candidate.with_values(**{n: origin.value(n) for n in origin.free_names})]
+        starts.append((candidate.with_values(**basin), ()))
+    if effect.bends:  # put back where the base fit started: the continuation leads them, as it led the base fit
+        starts += [(unbent(effect, candidate, origin), DEFAULT_HORIZONS_S),
+                   (candidate.with_values(**{n: origin.value(n) for n in origin.free_names}), DEFAULT_HORIZONS_S)]
     fits = run_together([fit_lsq_steps(Objective(fit_set, start, weights), max_iterations=config.final_iterations,
-                                       horizons_s=()) for start in starts]
-                        + [fit_lsq_steps(Objective(fit_set, start, weights), max_iterations=config.final_iterations)
-                           for start in far])
+                                       horizons_s=horizons) for start, horizons in starts])
     if fit_starts(candidate) != [{}]:
         grid = candidate.with_values(**{n: origin.value(n) for n in BASIN_PARAMETERS if n in candidate.free_names})
         fits.append(fit_from_shapes(Objective(fit_set, grid, weights),
