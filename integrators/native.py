@@ -7,7 +7,8 @@ what the kernels cost. ``_aba.cpp`` (built with the package against the same
 ``libpinocchio_default`` that ``pin`` uses) exposes Pinocchio's own ABA as C functions; numba
 calls :data:`ABA` like any C function, so a whole rollout runs in one compiled loop
 (``integrators.kernels.rollout_loop``) and ABA is still Pinocchio's: the same explicit
-instantiation as ``pin.aba``, whose accelerations it reproduces bit for bit (and so for
+instantiation as ``pin.aba``, whose accelerations in the WORLD convention (the faster pass; the
+same joint accelerations as the LOCAL one to roundoff) it reproduces bit for bit (and so for
 ``pin.computeMinverse``, the soft-constraint law's inverse mass matrix).
 
 :class:`NativeModel` rebuilds a :class:`~cobra_model.model.RobotModel`'s Pinocchio model on the
@@ -61,7 +62,7 @@ _F64 = types.CPointer(types.float64)
 
 #: ``cobra_aba(model, data, q, v, tau, a)`` for numba code: the acceleration (nv,) into ``a``
 #: from ``q`` (nq,), ``v`` (nv,), ``tau`` (nv,) (pass ``array.ctypes``), as ``pin.aba`` in the
-#: LOCAL convention; ``model`` and ``data`` are :attr:`NativeModel.handle` and
+#: WORLD convention; ``model`` and ``data`` are :attr:`NativeModel.handle` and
 #: :attr:`NativeData.handle`. Returns 0.
 ABA = types.ExternalFunction("cobra_aba", types.int32(types.intp, types.intp, _F64, _F64, _F64, _F64))
 #: ``cobra_aba_minverse(model, data, q, v, tau, a, minv)``: the acceleration without contact (nv,)

@@ -526,10 +526,11 @@ class Simulator:
         """The acceleration (nv,) under generalized force ``tau`` by the contact law: Pinocchio's
         ABA for the compliant ground, with the soft-constraint contact forces for that law
         (``model``, ``data``: this simulator's Pinocchio model and data, as :func:`pin.aba` takes
-        them)."""
-        if self.loop_law == K.LAW_COMPLIANT:
-            return pin.aba(model, data, q, v, tau)
+        them). ABA runs in the WORLD convention, as the compiled loops run it
+        (``integrators.native``)."""
         a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD).copy()
+        if self.loop_law == K.LAW_COMPLIANT:
+            return a
         if self.loop_law == K.LAW_COMPLIANT_IMPLICIT:
             K.implicit_friction_acceleration(v, pin.computeMinverse(model, data).copy(), self.model.chain.floating,
                                              self._chain_i[:, 0], self._chain_i[:, 2], self._feat_i[:, 0], self._X,
