@@ -407,6 +407,14 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
       "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+    # Pinocchio's ABA in the WORLD convention for the compliant ground (the soft laws took it
+    # already): step costs shorter, the last bits of every compliant-law rollout moved (within
+    # 1e-14 m over 20 s), so a fit's or a diagnosis's result may move where its cost is rough;
+    # rollouts without a fit (contact_law, contact_time_constant, effect_signal) agree to their digits
+    ("2026-12-04T23:06", "883ca4c", "ABA in the WORLD convention (compliant law's last bits)",
+     ("sim_speed", "fit_speed", "coverage", "channel_weighting", "diagnose_matrix", "diagnose_matrix_current",
+      "diagnose_matrix_choose", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+      "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
 )
 
 

@@ -82,7 +82,7 @@ void cobra_data_free(intptr_t data) { delete reinterpret_cast<Data*>(data); }
 // as `pin.aba(model, data, q, v, tau, pin.Convention.WORLD)`. The joint accelerations are the
 // LOCAL convention's to roundoff; WORLD accumulates the articulated inertias in the world frame,
 // so the backward pass does not carry each one through its joint's placement (a 6x6 congruence
-// per joint), and costs about 14 % less on COBRA (2.29 against 2.66 us per call). Returns 0.
+// per joint), and costs 12-14 % less on COBRA (2.29-2.35 against 2.66 us per call). Returns 0.
 int32_t cobra_aba(intptr_t model, intptr_t data, const double* q, const double* v, const double* tau, double* a) {
   const Model& m = *reinterpret_cast<Model*>(model);
   Data& d = *reinterpret_cast<Data*>(data);
