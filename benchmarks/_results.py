@@ -1,7 +1,10 @@
 """Benchmark results as artefacts: ``benchmarks/results/<name>.json`` and ``<name>.md``.
 
-Every file records the machine, the package versions and the date of the run, so that the
-README can quote a table together with where and when it was measured.
+Every file records the machine, the package versions, the code's commit and the date of the
+run, so that the README can quote a table together with where and when it was measured. The
+machine includes its CPU and the CPU numba compiles the kernels for: the same code and data can
+round differently on another CPU (other vector instructions, other fused multiply-adds), and a
+fit on a rough cost can follow that roundoff into another basin.
 """
 from __future__ import annotations
 
@@ -9,18 +12,50 @@ import datetime as _dt
 import json
 import os
 import platform
+import subprocess
 from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-RESULTS_DIR = Path(__file__).resolve().parent / "results"
+REPO = Path(__file__).resolve().parent.parent
+RESULTS_DIR = REPO / "benchmarks" / "results"
 
 #: Packages whose versions change the figures.
 PACKAGES: tuple[str, ...] = ("numpy", "scipy", "pin", "casadi", "mujoco", "numba", "stable-baselines3", "torch")
 
 
+def code_commit() -> str | None:
+    """The checkout's commit, with ``+modified`` when tracked files other than results and prose
+    (``benchmarks/results``, ``*.md``) differ from it; None outside a git checkout."""
+    def git(*args: str) -> str:
+        return subprocess.run(["git", "-C", str(REPO), *args], capture_output=True, text=True, check=True,
+                              timeout=30).stdout.strip()
+    try:
+        head = git("rev-parse", "--short=7", "HEAD")
+        changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)benchmarks/results",
+                      ":(exclude)*.md")
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return head + ("+modified" if changed else "")
+
+
+def cpu_name() -> str:
+    """The CPU's model name (``/proc/cpuinfo``), or what :mod:`platform` knows of it."""
+    try:
+        with open("/proc/cpuinfo") as info:
+            for line in info:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
 def environment() -> dict[str, Any]:
-    """Machine, Python and package versions, and the UTC date of the run."""
+    """Machine (with its CPU and numba's compilation target), Python and package versions, the
+    code's commit and the UTC date of the run."""
+    import llvmlite.binding  # numba's compiler: the CPU it targets decides the kernels' roundoff
+
     versions = {}
     for name in PACKAGES:
         try:
@@ -30,8 +65,10 @@ def environment() -> dict[str, Any]:
     return {
         "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
-                    "cpu_count": os.cpu_count(), "python": platform.python_version()},
+                    "cpu_count": os.cpu_count(), "python": platform.python_version(), "cpu": cpu_name(),
+                    "numba_target": llvmlite.binding.get_host_cpu_name()},
         "versions": versions,
+        "commit": code_commit(),
     }
 
 
@@ -39,7 +76,9 @@ def environment_markdown(env: dict[str, Any]) -> str:
     """One paragraph naming the machine, versions and date of ``env`` (from :func:`environment`)."""
     m = env["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in env["versions"].items() if v)
-    return (f"Measured {env['date_utc']} on {m['platform']} ({m['processor']}, {m['cpu_count']} CPUs), "
+    cpu = f"; {m['cpu']}, numba compiling for {m['numba_target']}" if m.get("cpu") else ""
+    commit = f" at commit {env['commit']}" if env.get("commit") else ""
+    return (f"Measured {env['date_utc']}{commit} on {m['platform']} ({m['processor']}, {m['cpu_count']} CPUs{cpu}), "
             f"Python {m['python']}; {versions}.")
 
 
