@@ -54,7 +54,8 @@ def cpu_name() -> str:
 def environment() -> dict[str, Any]:
     """Machine (with its CPU and numba's compilation target), Python and package versions, the
     code's commit and the UTC date of the run."""
-    import llvmlite.binding  # numba's compiler: the CPU it targets decides the kernels' roundoff
+    import llvmlite.binding
+    import numba  # the CPU numba compiles for (NUMBA_CPU_NAME, else this one) decides the kernels' roundoff
 
     versions = {}
     for name in PACKAGES:
@@ -66,7 +67,7 @@ def environment() -> dict[str, Any]:
         "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                     "cpu_count": os.cpu_count(), "python": platform.python_version(), "cpu": cpu_name(),
-                    "numba_target": llvmlite.binding.get_host_cpu_name()},
+                    "numba_target": numba.config.CPU_NAME or llvmlite.binding.get_host_cpu_name()},
         "versions": versions,
         "commit": code_commit(),
     }

@@ -33,10 +33,16 @@ def test_the_commit_is_marked_modified_by_a_code_change_not_by_results_or_prose(
 
 
 def test_the_environment_names_the_cpu_numbas_target_and_the_commit(monkeypatch):
+    import llvmlite.binding
+    import numba
+
     monkeypatch.setattr(results, "code_commit", lambda: "abc1234")
     env = results.environment()
     machine = env["machine"]
-    assert machine["cpu"] and machine["numba_target"] and env["commit"] == "abc1234"
+    assert machine["cpu"] and env["commit"] == "abc1234"
+    assert machine["numba_target"] == (numba.config.CPU_NAME or llvmlite.binding.get_host_cpu_name())
+    monkeypatch.setattr(numba.config, "CPU_NAME", "x86-64")  # NUMBA_CPU_NAME: compiled for another CPU
+    assert results.environment()["machine"]["numba_target"] == "x86-64"
     text = results.environment_markdown(env)
     assert "at commit abc1234" in text and f"numba compiling for {machine['numba_target']}" in text
     # a file written before these fields still renders
