@@ -2,20 +2,24 @@
 
 Every file records the machine, the package versions, the code's commit and the date of the
 run, so that the README can quote a table together with where and when it was measured. The
-machine includes its CPU and the CPU numba compiles the kernels for: the same code and data can
-round differently on another CPU (other vector instructions, other fused multiply-adds), and a
-fit on a rough cost can follow that roundoff into another basin.
+machine includes its CPU, the CPU numba compiles the kernels for and the BLAS kernels numpy
+runs (OpenBLAS picks them by CPU, or by ``OPENBLAS_CORETYPE``): the same code and data can round
+differently on another CPU (other vector instructions, other fused multiply-adds, other
+summation orders), and a fit on a rough cost can follow that roundoff into another basin.
 """
 from __future__ import annotations
 
 import datetime as _dt
+import hashlib
 import json
 import os
 import platform
 import subprocess
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
+
+import numpy as np
 
 REPO = Path(__file__).resolve().parent.parent
 RESULTS_DIR = REPO / "benchmarks" / "results"
@@ -51,11 +55,26 @@ def cpu_name() -> str:
     return platform.processor() or platform.machine()
 
 
+def runs_fingerprint(runs: Iterable[Any]) -> str:
+    """The first 16 hex digits of a SHA-256 over the runs' arrays (time, commands, joints, head
+    pose, joint velocities and currents when logged, tracked bodies by name), in order: equal
+    on two machines when they generated the same data to the last bit, so that a result that
+    moved between hosts can be told apart from data that did."""
+    digest = hashlib.sha256()
+    for run in runs:
+        arrays = [run.t, run.q_ref, run.q, run.head_pos, run.head_quat, run.dq, run.current]
+        arrays += [run.bodies[name] for name in sorted(run.bodies)]
+        for a in arrays:
+            digest.update(b"-" if a is None else np.ascontiguousarray(a, dtype=np.float64).tobytes())
+    return digest.hexdigest()[:16]
+
+
 def environment() -> dict[str, Any]:
-    """Machine (with its CPU and numba's compilation target), Python and package versions, the
-    code's commit and the UTC date of the run."""
+    """Machine (with its CPU, numba's compilation target and the BLAS kernels numpy runs), Python
+    and package versions, the code's commit and the UTC date of the run."""
     import llvmlite.binding
     import numba  # the CPU numba compiles for (NUMBA_CPU_NAME, else this one) decides the kernels' roundoff
+    import threadpoolctl  # and the kernels OpenBLAS picked for this CPU (or OPENBLAS_CORETYPE), numpy's
 
     versions = {}
     for name in PACKAGES:
@@ -67,7 +86,9 @@ def environment() -> dict[str, Any]:
         "date_utc": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
         "machine": {"platform": platform.platform(), "processor": platform.processor() or platform.machine(),
                     "cpu_count": os.cpu_count(), "python": platform.python_version(), "cpu": cpu_name(),
-                    "numba_target": numba.config.CPU_NAME or llvmlite.binding.get_host_cpu_name()},
+                    "numba_target": numba.config.CPU_NAME or llvmlite.binding.get_host_cpu_name(),
+                    "blas": ", ".join(f"{lib['internal_api']} {lib.get('architecture') or '?'}"
+                                      for lib in threadpoolctl.threadpool_info() if lib["user_api"] == "blas")},
         "versions": versions,
         "commit": code_commit(),
     }
@@ -77,7 +98,7 @@ def environment_markdown(env: dict[str, Any]) -> str:
     """One paragraph naming the machine, versions and date of ``env`` (from :func:`environment`)."""
     m = env["machine"]
     versions = ", ".join(f"{k} {v}" for k, v in env["versions"].items() if v)
-    cpu = f"; {m['cpu']}, numba compiling for {m['numba_target']}" if m.get("cpu") else ""
+    cpu = f"; {m['cpu']}, numba compiling for {m['numba_target']}, BLAS {m.get('blas', '?')}" if m.get("cpu") else ""
     commit = f" at commit {env['commit']}" if env.get("commit") else ""
     return (f"Measured {env['date_utc']}{commit} on {m['platform']} ({m['processor']}, {m['cpu_count']} CPUs{cpu}), "
             f"Python {m['python']}; {versions}.")

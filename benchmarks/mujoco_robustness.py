@@ -72,7 +72,7 @@ from typing import Callable
 
 import numpy as np
 
-from _results import write_results
+from _results import runs_fingerprint, write_results
 from _args import number_list
 
 from cobra_model import CobraModel, ModelParameters
@@ -284,17 +284,19 @@ def main(argv: list[str] | None = None) -> int:
                                     seed=seed, log_current=args.current)
             t0 = time.perf_counter()
             d = diagnose(train, hold, params=start, config=DiagnoseConfig(max_effects=2), progress=progress)
-            rows.append(row(case, seed, d, time.perf_counter() - t0))
+            rows.append(row(case, seed, d, time.perf_counter() - t0, runs_fingerprint(train + hold)))
             write_results(name, rows, meta(args, seeds, chosen, base), markdown(rows))
     print(markdown(rows))
     return 0
 
 
-def row(case: str, seed: int, d: Diagnosis, wall_s: float) -> dict:
+def row(case: str, seed: int, d: Diagnosis, wall_s: float, data: str) -> dict:
     """One table row of a diagnosis (see the module docstring); ``effects`` holds every named effect
     as in ``diagnosis.json`` (fitted value, 95 % interval, evidence), ``round1`` the best three
-    candidates of round 1."""
-    out = {"case": case, "label": CASES[case].label, "seed": seed, "named": [e.name for e in d.effects],
+    candidates of round 1, ``data_sha256`` the fingerprint ``data`` of the MuJoCo runs diagnosed
+    (:func:`_results.runs_fingerprint`)."""
+    out = {"case": case, "label": CASES[case].label, "seed": seed, "data_sha256": data,
+           "named": [e.name for e in d.effects],
            "effects": [e.to_json() for e in d.effects], "structural": [s.to_json() for s in d.structural],
            "verdict": d.verdict, "wall_s": wall_s,
            "head_final_before_m": d.gap_before.head_final_error_m,
@@ -330,6 +332,10 @@ def markdown(rows: list[dict]) -> str:
                      f"{r['head_final_before_m']:.4f} -> {r['head_final_after_m']:.4f} | "
                      f"{r['joint_rmse_before_rad']:.4f} -> {r['joint_rmse_after_rad']:.4f} | {c_text} | "
                      f"{r['wall_s']:.0f} |")
+    if any("data_sha256" in r for r in rows):
+        lines += ["", "The MuJoCo runs each row diagnosed, by fingerprint (`_results.runs_fingerprint`; the same on "
+                  "two machines when they generated the same data): "
+                  + ", ".join(f"{r['case']} seed {r['seed']} `{r.get('data_sha256', '-')}`" for r in rows) + "."]
     return "\n".join(lines) + "\n"
 
 

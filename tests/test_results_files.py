@@ -39,7 +39,7 @@ def test_the_environment_names_the_cpu_numbas_target_and_the_commit(monkeypatch)
     monkeypatch.setattr(results, "code_commit", lambda: "abc1234")
     env = results.environment()
     machine = env["machine"]
-    assert machine["cpu"] and env["commit"] == "abc1234"
+    assert machine["cpu"] and env["commit"] == "abc1234" and machine["blas"].startswith("openblas")  # numpy's
     assert machine["numba_target"] == (numba.config.CPU_NAME or llvmlite.binding.get_host_cpu_name())
     monkeypatch.setattr(numba.config, "CPU_NAME", "x86-64")  # NUMBA_CPU_NAME: compiled for another CPU
     assert results.environment()["machine"]["numba_target"] == "x86-64"
@@ -50,3 +50,23 @@ def test_the_environment_names_the_cpu_numbas_target_and_the_commit(monkeypatch)
            "machine": {"platform": "p", "processor": "x", "cpu_count": 2, "python": "3"}}
     assert results.environment_markdown(old) == "Measured 2026-01-02T03:04:05+00:00 on p (x, 2 CPUs), Python 3; numpy 1."
 
+
+
+def test_a_runs_fingerprint_is_the_same_for_the_same_data_and_changes_with_one_bit():
+    import dataclasses
+
+    import numpy as np
+
+    from cobra_model.run_files import read_run
+    from sysid.generators.dataset import DATA_DIR
+
+    runs = [read_run(DATA_DIR / "run_01_0p35hz.csv"), read_run(DATA_DIR / "run_02_0p50hz.csv")]
+    again = [read_run(DATA_DIR / "run_01_0p35hz.csv"), read_run(DATA_DIR / "run_02_0p50hz.csv")]
+    assert results.runs_fingerprint(runs) == results.runs_fingerprint(again)
+    assert results.runs_fingerprint(runs) != results.runs_fingerprint(runs[::-1])  # the order counts
+    q = runs[0].q.copy()
+    q[100, 3] = np.nextafter(q[100, 3], np.inf)  # one joint sample, one bit
+    assert results.runs_fingerprint([dataclasses.replace(runs[0], q=q), runs[1]]) != results.runs_fingerprint(runs)
+    current = np.zeros_like(runs[0].q)  # currents logged as zeros are not currents left out
+    assert (results.runs_fingerprint([dataclasses.replace(runs[0], current=current)])
+            != results.runs_fingerprint(runs[:1]))
