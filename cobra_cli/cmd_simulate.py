@@ -33,7 +33,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="servo loop period [s], a multiple of --dt (default = --dt)")
     p.add_argument("--scheme", choices=SCHEMES, default="velocity",
                    help="physics step: 'velocity' (semi-implicit Euler, the fits' step) or 'momentum' "
-                        "(symplectic Euler on the momentum: bounded energy error, ~20x the cost) (default velocity)")
+                        "(symplectic Euler on the momentum: bounded energy error, ~30x the cost) (default velocity)")
     add_contact_option(p, "simulate")
     p.add_argument("--heading", type=float, default=0.0, help="initial heading [deg] (default 0)")
     p.add_argument("--rate", type=float, default=100.0, help="output sample rate [Hz] (default 100)")
