@@ -528,9 +528,10 @@ class Simulator:
         (``model``, ``data``: this simulator's Pinocchio model and data, as :func:`pin.aba` takes
         them). ABA runs in the WORLD convention, as the compiled loops run it
         (``integrators.native``)."""
-        a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD).copy()
+        a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD)
         if self.loop_law == K.LAW_COMPLIANT:
-            return a
+            return a  # Pinocchio's data.ddq, read at once by the step
+        a = a.copy()  # the contact laws below add to it
         if self.loop_law == K.LAW_COMPLIANT_IMPLICIT:
             K.implicit_friction_acceleration(v, pin.computeMinverse(model, data).copy(), self.model.chain.floating,
                                              self._chain_i[:, 0], self._chain_i[:, 2], self._feat_i[:, 0], self._X,
