@@ -43,6 +43,21 @@ def code_commit() -> str | None:
     return head + ("+modified" if changed else "")
 
 
+#: The code's commit when this module was imported, that is when a benchmark started: a run of
+#: hours (``diagnose_matrix``) measures the code it started with, and its worker processes may
+#: import the checkout's later code, so a change in between must show in the file it writes.
+COMMIT_AT_START: str | None = code_commit()
+
+
+def run_commit() -> str | None:
+    """The commit a benchmark ran at: :data:`COMMIT_AT_START`, followed by ``, changed to X
+    during the run`` when the checkout's code (:func:`code_commit`) is another now."""
+    now = code_commit()
+    if now == COMMIT_AT_START:
+        return now
+    return f"{COMMIT_AT_START}, changed to {now} during the run"
+
+
 def cpu_name() -> str:
     """The CPU's model name (``/proc/cpuinfo``), or what :mod:`platform` knows of it."""
     try:
@@ -71,7 +86,7 @@ def runs_fingerprint(runs: Iterable[Any]) -> str:
 
 def environment() -> dict[str, Any]:
     """Machine (with its CPU, numba's compilation target and the BLAS kernels numpy runs), Python
-    and package versions, the code's commit and the UTC date of the run."""
+    and package versions, the code's commit (:func:`run_commit`) and the UTC date of the run."""
     import llvmlite.binding
     import numba  # the CPU numba compiles for (NUMBA_CPU_NAME, else this one) decides the kernels' roundoff
     import threadpoolctl  # and the kernels OpenBLAS picked for this CPU (or OPENBLAS_CORETYPE), numpy's
@@ -90,7 +105,7 @@ def environment() -> dict[str, Any]:
                     "blas": ", ".join(f"{lib['internal_api']} {lib.get('architecture') or '?'}"
                                       for lib in threadpoolctl.threadpool_info() if lib["user_api"] == "blas")},
         "versions": versions,
-        "commit": code_commit(),
+        "commit": run_commit(),
     }
 
 

@@ -36,10 +36,15 @@ def test_the_environment_names_the_cpu_numbas_target_and_the_commit(monkeypatch)
     import llvmlite.binding
     import numba
 
+    import threadpoolctl
+
     monkeypatch.setattr(results, "code_commit", lambda: "abc1234")
+    monkeypatch.setattr(results, "COMMIT_AT_START", "abc1234")
     env = results.environment()
     machine = env["machine"]
-    assert machine["cpu"] and env["commit"] == "abc1234" and machine["blas"].startswith("openblas")  # numpy's
+    numpys_blas = [lib["internal_api"] for lib in threadpoolctl.threadpool_info() if lib["user_api"] == "blas"]
+    assert machine["cpu"] and env["commit"] == "abc1234"
+    assert numpys_blas and machine["blas"].split()[0] == numpys_blas[0]  # openblas in numpy's PyPI wheel
     assert machine["numba_target"] == (numba.config.CPU_NAME or llvmlite.binding.get_host_cpu_name())
     monkeypatch.setattr(numba.config, "CPU_NAME", "x86-64")  # NUMBA_CPU_NAME: compiled for another CPU
     assert results.environment()["machine"]["numba_target"] == "x86-64"
@@ -50,6 +55,15 @@ def test_the_environment_names_the_cpu_numbas_target_and_the_commit(monkeypatch)
            "machine": {"platform": "p", "processor": "x", "cpu_count": 2, "python": "3"}}
     assert results.environment_markdown(old) == "Measured 2026-01-02T03:04:05+00:00 on p (x, 2 CPUs), Python 3; numpy 1."
 
+
+def test_a_run_during_which_the_code_changed_says_so(monkeypatch):
+    monkeypatch.setattr(results, "COMMIT_AT_START", "abc1234")  # the benchmark started here
+    monkeypatch.setattr(results, "code_commit", lambda: "def5678")  # and a commit landed meanwhile
+    env = results.environment()
+    assert env["commit"] == "abc1234, changed to def5678 during the run"
+    assert "at commit abc1234, changed to def5678 during the run on " in results.environment_markdown(env)
+    monkeypatch.setattr(results, "code_commit", lambda: "abc1234")
+    assert results.environment()["commit"] == "abc1234"
 
 
 def test_a_runs_fingerprint_is_the_same_for_the_same_data_and_changes_with_one_bit():
