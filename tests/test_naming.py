@@ -48,7 +48,7 @@ def test_a_candidate_whose_refit_without_the_effect_fits_as_well_is_not_named():
     basin = Baseline(5_990.0, np.array([80.0, 80.0, 80.0]))
     refit = RefitWithout({"mass": basin})
     cands = [candidate("mass", 6_000.0, [50.0, 50.0, 50.0]), candidate("friction", 7_000.0, [60.0, 55.0, 58.0])]
-    best, ranked, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, ranked, _, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert best is None and refit.calls == ["mass"]
     assert [c.name for c in ranked] == ["mass", "friction"]
     assert ranked[0].delta_bic > 0 and ranked[0].refit_without
@@ -64,7 +64,7 @@ def test_a_check_that_improves_the_baseline_can_end_a_near_tie():
                           "mass": Baseline(9_500.0, np.array([90.0, 95.0, 92.0]))})
     cands = [candidate("mass", 5_000.0, [50.0, 50.0, 50.0], signature=0.3),
              candidate("friction", 6_000.0, [53.0, 53.0, 53.0], signature=0.9)]
-    best, ranked, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, ranked, _, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert refit.calls == ["friction", "mass"]
     assert best is not None and best.name == "mass"
     assert np.isclose(best.held_out_improvement, 1 - 150.0 / 200.0)
@@ -73,7 +73,7 @@ def test_a_check_that_improves_the_baseline_can_end_a_near_tie():
 
 def test_a_real_effect_survives_its_check_with_unchanged_evidence():
     refit = RefitWithout({"friction": Baseline(10_500.0, np.array([110.0, 105.0, 108.0]))})
-    best, _, _ = choose([candidate("friction", 3_000.0, [30.0, 20.0, 25.0])], BASELINE, N, DiagnoseConfig(), refit)
+    best, _, _, _ = choose([candidate("friction", 3_000.0, [30.0, 20.0, 25.0])], BASELINE, N, DiagnoseConfig(), refit)
     assert refit.calls == ["friction"]
     assert best is not None and best.refit_without
     assert np.isclose(best.held_out_improvement, 1 - 75.0 / 300.0)
@@ -85,7 +85,7 @@ def test_nothing_significant_is_named_without_any_extra_refit():
     cands = [candidate("small", 9_000.0, [90.0, 90.0, 95.0]),
              candidate("one_run_worse", 8_000.0, [10.0, 10.0, 101.0]),
              candidate("bic", 9_999.0, [50.0, 50.0, 50.0])]
-    best, ranked, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, ranked, _, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert best is None and refit.calls == []
     assert ranked[0].name == "one_run_worse"   # the best held-out improvement, yet not named
 
@@ -94,7 +94,7 @@ def test_of_a_near_tie_the_better_signature_match_is_checked_first():
     refit = RefitWithout({n: BASELINE for n in ("a", "b")})
     cands = [candidate("a", 3_000.0, [30.0, 30.0, 30.0], signature=0.2),
              candidate("b", 3_100.0, [31.0, 31.0, 31.0], signature=0.9)]
-    best, _, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, _, _, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert best is not None and best.name == "b" and refit.calls == ["b"]
 
 
@@ -105,7 +105,7 @@ def test_a_proxy_is_set_aside_and_the_physical_effect_behind_it_is_named():
     refit = RefitWithout({"friction": BASELINE})
     cands = [candidate("anisotropy", 2_000.0, [20.0, 20.0, 20.0], implausible="ratio at its bound"),
              candidate("friction", 5_000.0, [50.0, 50.0, 50.0])]
-    best, ranked, proxies = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, ranked, proxies, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert [p.name for p in proxies] == ["anisotropy"] and refit.calls == ["friction"]
     assert best is not None and best.name == "friction"
     assert [c.name for c in ranked] == ["anisotropy", "friction"]   # the report still shows both
@@ -113,7 +113,7 @@ def test_a_proxy_is_set_aside_and_the_physical_effect_behind_it_is_named():
 
 def test_an_insignificant_implausible_candidate_is_no_proxy():
     refit = RefitWithout({})
-    best, _, proxies = choose([candidate("small", 9_000.0, [90.0, 90.0, 95.0], implausible="far out")],
+    best, _, proxies, _ = choose([candidate("small", 9_000.0, [90.0, 90.0, 95.0], implausible="far out")],
                               BASELINE, N, DiagnoseConfig(), refit)
     assert best is None and proxies == [] and refit.calls == []
 
@@ -149,12 +149,12 @@ def test_a_candidate_whose_effect_carries_too_little_itself_is_set_aside_and_the
     parameters'. It is set aside, reported with its share, and 'friction' is checked and named."""
     refit = RefitWithout({"mass": BASELINE, "friction": BASELINE}, shares={"mass": 0.05, "friction": 0.6})
     cands = [candidate("mass", 3_000.0, [30.0, 30.0, 30.0]), candidate("friction", 4_000.0, [40.0, 40.0, 40.0])]
-    best, ranked, proxies = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    best, ranked, proxies, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
     assert refit.calls == ["mass", "friction"] and proxies == []
     assert best is not None and best.name == "friction" and best.effect_share == 0.6
     assert [(c.name, c.effect_share) for c in ranked] == [("mass", 0.05), ("friction", 0.6)]
     # alone, the candidate whose effect carries too little is not named
-    best, _, _ = choose(cands[:1], BASELINE, N, DiagnoseConfig(), RefitWithout({"mass": BASELINE}, {"mass": 0.05}))
+    best, _, _, _ = choose(cands[:1], BASELINE, N, DiagnoseConfig(), RefitWithout({"mass": BASELINE}, {"mass": 0.05}))
     assert best is None
 
 
