@@ -42,15 +42,19 @@ def write_diagnosis_report(result: Diagnosis, out: Path) -> Path:
     for i, round_ in enumerate(result.rounds, start=1):
         page.heading(f"Candidates, round {i}")
         page.table(["effect", "fitted value", "unit", "held-out cost reduction", "held-out runs improved", "dBIC",
-                    "signature match", "refitted without it", "share its effect carries", "physical value"],
+                    "signature match", "refitted without it", "share its effect carries", "physical value",
+                    "evidence from"],
                    [[c.name, c.value, c.unit, c.held_out_improvement, c.runs_improved, c.delta_bic, c.signature_match,
                      "yes" if c.refit_without else "no", "-" if c.effect_share is None else c.effect_share,
-                     c.implausible or "yes"] for c in round_])
+                     c.implausible or "yes", "whole runs (second look)" if c.whole_runs else "screening"]
+                    for c in round_])
         page.paragraph("Evidence is against the best fit without a new effect: the current model refitted "
                        "alone, or a checked candidate's model refitted without its effect. The share its effect "
                        "carries: how much of the held-out cost comes back when the effect is switched off at the "
                        "candidate's own parameters (a checked candidate is named only if it is at least the "
-                       "required reduction).")
+                       "required reduction). A second look: when no screened candidate passes, the one the "
+                       "training runs support most is refitted on the whole runs, as naming it would, and judged "
+                       "there.")
     page.heading("Augmented model")
     fit = result.fits[-1]
     if fit.residual_whiteness is not None:
