@@ -318,6 +318,9 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   (soft-law diagnoses; CHANGELOG "forty-seventh stop"): the same.
 #: - ... and, for an effect that bends parameters (a torque limit), from the candidate with
 #:   them unbent (CHANGELOG "fiftieth stop"): the same, for diagnoses that name a torque limit.
+#: - A round whose screened candidates all fail gives the one the training runs support most a
+#:   second look on the whole runs (``sysid.discrepancy.diagnose.second_look``; CHANGELOG
+#:   "sixty-first stop"): diagnoses in which a round named nothing; the others bit for bit.
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -415,6 +418,10 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
      ("sim_speed", "fit_speed", "coverage", "channel_weighting", "diagnose_matrix", "diagnose_matrix_current",
       "diagnose_matrix_choose", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
       "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+    ("2026-12-05T02:49", "c4df0f7", "the second look when no screened candidate passes",
+     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
+      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
 )
 
 
