@@ -856,7 +856,7 @@ def _whole_run_refit(start: ModelParameters, fit_set: Sequence[Run], holdout: Se
 def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: ModelParameters,
                 origin: ModelParameters, fit_set: Sequence[Run], holdout: Sequence[Run], weights: Weights,
                 config: DiagnoseConfig, library: EffectLibrary, progress: Callable[[str], None] = lambda m: None
-                ) -> tuple[Candidate | None, FitResult | None]:
+                ) -> tuple[Candidate | None, FitResult | None, bool]:
     """When :func:`choose` names nothing: the candidate whose effect the training runs support
     most (the lowest dBIC below ``bic_threshold``, its value physical, its screening refit's
     training cost at least ``min_improvement`` below the baseline's, the cut that naming asks of
@@ -868,8 +868,11 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
     runs: the held-out cost down by ``min_improvement`` against the baseline joined with the
     whole runs' refit of its model without the effect, every held-out run improved, the
     training runs' ``dBIC < bic_threshold`` against that refit, a physical value, and the effect
-    carrying ``min_improvement`` of the held-out cost itself (:func:`effect_share`). Otherwise
-    ``(None, None)``.
+    carrying ``min_improvement`` of the held-out cost itself (:func:`effect_share`).
+
+    Returns:
+        the candidate with its whole runs' evidence (``whole_runs``), that refit, and whether
+        it is named; ``(None, None, False)`` when no candidate qualifies for a second look.
 
     Physical reason: a candidate's screening refit is short (the runs' first
     :data:`SCREEN_HORIZON_S`, ``screen_iterations`` iterations), enough when one effect is
@@ -890,7 +893,7 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
                         and c.train_cost <= (1.0 - config.min_improvement) * baseline.train_rss),
                        key=lambda c: c.delta_bic)
     if not supported:
-        return None, None
+        return None, None, False
     c, effect = supported[0], library[supported[0].name]
     progress(f"no screened candidate predicts the held-out runs; {c.name} cuts the training cost most "
              f"(dBIC {c.delta_bic:.0f}): refitting it on the whole runs, as naming it would")
@@ -915,7 +918,7 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
     progress(f"{c.name} on the whole runs: {effect.parameter.name} = {value:.4g} {effect.parameter.unit}, held-out cost "
              f"{-100 * looked.held_out_improvement:+.0f} %, its own share {100 * share:.0f} %, dBIC {dbic:.0f}: "
              + ("named" if named else "not named"))
-    return (looked, fit) if named else (None, None)
+    return looked, fit, named
 
 
 def _held_out_costs(params: ModelParameters, holdout: Sequence[Run], weights: Weights) -> Steps[np.ndarray]:
@@ -1069,10 +1072,12 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
         result.structural += [StructuralDifference(c.name, c.value, c.unit, c.implausible, c.held_out_improvement,
                                                    round_ + 1) for c in proxies if c.name not in known]
         if best is None:
-            best, final = second_look(candidates, baseline, current, start, fit_set, holdout, weights, config,
-                                      library, lambda message, round_=round_: progress(f"round {round_ + 1}: {message}"))
-            if best is not None:
-                candidates = [best if c.name == best.name else c for c in candidates]
+            looked, final, named_now = second_look(candidates, baseline, current, start, fit_set, holdout, weights,
+                                                   config, library,
+                                                   lambda message, round_=round_: progress(f"round {round_ + 1}: {message}"))
+            if looked is not None:  # its whole runs' evidence replaces its screening's, named or not
+                candidates = [looked if c.name == looked.name else c for c in candidates]
+            best = looked if named_now else None
         else:
             progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
             final = final_refit(best.params, current, start, fit_set, weights, config, library[best.name])
