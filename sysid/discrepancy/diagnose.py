@@ -746,23 +746,28 @@ def _cost_or_inf(objective: Objective, x: np.ndarray) -> Steps[float]:
 
 
 def _screen_refit(start: ModelParameters, fit_set: Sequence[Run], holdout: Sequence[Run],
-                  iterations: int, weights: Weights) -> Steps[tuple[FitResult, np.ndarray]]:
+                  iterations: int, weights: Weights, whole_runs: bool = False
+                  ) -> Steps[tuple[FitResult, np.ndarray]]:
     """A screening refit: ``start``'s free parameters on the fit runs' first
-    :data:`SCREEN_HORIZON_S` (no horizon continuation), and the refit's held-out cost per run
-    (whole runs); a computation (:mod:`sysid.identification.lockstep`)."""
-    fit = yield from fit_lsq_steps(_capped(Objective(fit_set, start, weights)), max_iterations=iterations,
+    :data:`SCREEN_HORIZON_S` (on the whole runs with ``whole_runs``; no horizon continuation),
+    and the refit's held-out cost per run (whole runs); a computation
+    (:mod:`sysid.identification.lockstep`)."""
+    objective = Objective(fit_set, start, weights)
+    fit = yield from fit_lsq_steps(objective if whole_runs else _capped(objective), max_iterations=iterations,
                                    horizons_s=())
     return fit, (yield from _held_out_costs(fit.params, holdout, weights))
 
 
 def final_refit(candidate: ModelParameters, current: ModelParameters, origin: ModelParameters,
-                fit_set: Sequence[Run], weights: Weights, config: DiagnoseConfig, effect: Effect) -> FitResult:
+                fit_set: Sequence[Run], weights: Weights, config: DiagnoseConfig, effect: Effect,
+                from_base_start: bool = False) -> FitResult:
     """The whole runs' refit of the model with the named ``effect``: from the candidate's fit,
     and, when that fit moved the ground's shape or stiffness (:data:`BASIN_PARAMETERS`), also
     from it with those back at the current model's values; for an effect that declares what a fit
     lacking it bends (:attr:`~sysid.discrepancy.effects.Effect.bends`), also from the candidate
     with those parameters back at ``origin``'s (:func:`unbent`) and with every parameter of
-    ``origin``'s free set back at its value there (the effect's values kept); the evaluations of these fits
+    ``origin``'s free set back at its value there (the effect's values kept; that start for any
+    effect with ``from_base_start``, :func:`second_look`); the evaluations of these fits
     share batches, the first's result bit for bit its own. When the ground's shape or stiffness
     is free, also from the base fit's grid of them (:func:`fit_from_shapes` from the candidate
     with those at the values of ``origin``, the base fit's start: its best screened start fitted
@@ -833,8 +838,9 @@ def final_refit(candidate: ModelParameters, current: ModelParameters, origin: Mo
     if basin:
         starts.append((candidate.with_values(**basin), ()))
     if effect.bends:  # put back where the base fit started: the continuation leads them, as it led the base fit
-        starts += [(unbent(effect, candidate, origin), DEFAULT_HORIZONS_S),
-                   (candidate.with_values(**{n: origin.value(n) for n in origin.free_names}), DEFAULT_HORIZONS_S)]
+        starts.append((unbent(effect, candidate, origin), DEFAULT_HORIZONS_S))
+    if effect.bends or from_base_start:
+        starts.append((candidate.with_values(**{n: origin.value(n) for n in origin.free_names}), DEFAULT_HORIZONS_S))
     fits = run_together([fit_lsq_steps(Objective(fit_set, start, weights), max_iterations=config.final_iterations,
                                        horizons_s=horizons) for start, horizons in starts])
     if fit_starts(candidate) != [{}]:
@@ -843,14 +849,6 @@ def final_refit(candidate: ModelParameters, current: ModelParameters, origin: Mo
                                     lambda objective: fit_lsq_steps(objective, max_iterations=config.final_iterations),
                                     whole_run_fits=1).best)
     return min(fits, key=lambda fit: fit.cost)
-
-
-def _whole_run_refit(start: ModelParameters, fit_set: Sequence[Run], holdout: Sequence[Run], iterations: int,
-                     weights: Weights) -> Steps[tuple[FitResult, np.ndarray]]:
-    """A refit of ``start``'s free parameters on the whole fit runs (no horizon continuation)
-    and its held-out cost per run; a computation (:mod:`sysid.identification.lockstep`)."""
-    fit = yield from fit_lsq_steps(Objective(fit_set, start, weights), max_iterations=iterations, horizons_s=())
-    return fit, (yield from _held_out_costs(fit.params, holdout, weights))
 
 
 def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: ModelParameters,
@@ -889,22 +887,19 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
     kg with the held-out cost 27 % down, and the next round named the anisotropy; the final model
     holds 0.801 kg and 1.997 (held-out head 52.9 -> 0.3 mm).
     """
-    supported = sorted((c for c in candidates if c.implausible is None and c.delta_bic < config.bic_threshold
-                        and c.train_cost <= (1.0 - config.min_improvement) * baseline.train_rss),
-                       key=lambda c: c.delta_bic)
-    if not supported:
+    c = min((c for c in candidates if c.implausible is None and c.delta_bic < config.bic_threshold
+             and c.train_cost <= (1.0 - config.min_improvement) * baseline.train_rss),
+            key=lambda c: c.delta_bic, default=None)
+    if c is None:
         return None, None, False
-    c, effect = supported[0], library[supported[0].name]
+    effect = library[c.name]
     progress(f"no screened candidate predicts the held-out runs; {c.name} cuts the training cost most "
              f"(dBIC {c.delta_bic:.0f}): refitting it on the whole runs, as naming it would")
-    fresh = c.params.with_values(**{n: origin.value(n) for n in origin.free_names})
-    fit = min([final_refit(c.params, current, origin, fit_set, weights, config, effect),
-               *run_together([fit_lsq_steps(Objective(fit_set, fresh, weights), max_iterations=config.final_iterations)])],
-              key=lambda f: f.cost)
+    fit = final_refit(c.params, current, origin, fit_set, weights, config, effect, from_base_start=True)
     value = fit.params.value(effect.parameter.name)
     on = replace(c, value=value, params=fit.params)
     (without, hold_without), hold, share = run_together([
-        _whole_run_refit(switched_off(on, effect), fit_set, holdout, config.final_iterations, weights),
+        _screen_refit(switched_off(on, effect), fit_set, holdout, config.final_iterations, weights, whole_runs=True),
         _held_out_costs(fit.params, holdout, weights),
         effect_share(on, effect, holdout, weights)])
     joined = baseline.joined(Baseline(np.inf, hold_without))
