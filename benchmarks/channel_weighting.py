@@ -32,10 +32,10 @@ The joint-side truths are MuJoCo's own values: ``joint_damping`` 0.16 N m s/rad 
 (``frictionloss``); the table gives each fitted value and whether its 95 % interval (HAC) holds it.
 
 Seeds: none was used to develop anything here (the script measures, it tunes nothing); it runs
-on the matrix's evaluation seeds 31, 32, 33 (its development seed is 21).
+on the matrix's evaluation seeds (``benchmarks.diagnose_matrix.EVAL_SEEDS``; its development seed is 21).
 
 Writes ``benchmarks/results/channel_weighting.{json,md,png}`` (the PNG: each value by case and weighting).
-Run: ``.venv/bin/python benchmarks/channel_weighting.py [--seeds 31,32,33] [--cases sim,twin-compliant,...]``.
+Run: ``.venv/bin/python benchmarks/channel_weighting.py [--seeds 34,35,36] [--cases sim,twin-compliant,...]``.
 """
 from __future__ import annotations
 
