@@ -10,7 +10,8 @@ $(PY):
 	$(PY) -m pip install --quiet --upgrade pip wheel setuptools
 
 # torch first, pinned: a CPU build of 2.13.0 is served locally; any other spec pulls CUDA wheels.
-$(STAMP): $(PY) pyproject.toml
+# The C++ extension's source and build script too: an edited _aba.cpp is rebuilt, not left stale.
+$(STAMP): $(PY) pyproject.toml setup.py integrators/_aba.cpp
 	$(PY) -m pip install --quiet torch==2.13.0
 	$(PY) -m pip install --quiet -e '.[all]'
 	touch $(STAMP)

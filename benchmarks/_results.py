@@ -29,15 +29,17 @@ PACKAGES: tuple[str, ...] = ("numpy", "scipy", "pin", "casadi", "mujoco", "numba
 
 
 def code_commit() -> str | None:
-    """The checkout's commit, with ``+modified`` when tracked files other than results and prose
-    (``benchmarks/results``, ``*.md``) differ from it; None outside a git checkout."""
+    """The checkout's last commit that changed code, that is anything but results and prose
+    (``benchmarks/results``, ``*.md``), with ``+modified`` when such tracked files differ from
+    it; None outside a git checkout. A commit of prose or results alone (the docs of a rerun,
+    written while the next one runs) changes no measured code and so not this."""
     def git(*args: str) -> str:
         return subprocess.run(["git", "-C", str(REPO), *args], capture_output=True, text=True, check=True,
                               timeout=30).stdout.strip()
+    code = ("--", ".", ":(exclude)benchmarks/results", ":(exclude)*.md")
     try:
-        head = git("rev-parse", "--short=7", "HEAD")
-        changed = git("status", "--porcelain", "--untracked-files=no", "--", ".", ":(exclude)benchmarks/results",
-                      ":(exclude)*.md")
+        head = git("log", "-1", "--format=%H", *code)[:7]
+        changed = git("status", "--porcelain", "--untracked-files=no", *code)
     except (OSError, subprocess.SubprocessError):
         return None
     return head + ("+modified" if changed else "")

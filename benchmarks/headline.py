@@ -64,6 +64,15 @@ def _speed(doc: dict) -> list[tuple[str, str, str]]:
     return out
 
 
+def _not_hidden(rows: list[dict]) -> str:
+    """``N of M``: how many of ``rows`` (hidden-effect and pair rows) name an effect that was not
+    hidden, with the effects they name so (issue 16: name only what is there)."""
+    hidden = [set(r["effect"].split("+")) for r in rows]
+    wrong = sorted({n for r, h in zip(rows, hidden) for n in r["named_all"] if n not in h})
+    count = sum(bool(set(r["named_all"]) - h) for r, h in zip(rows, hidden))
+    return f"{count} of {len(rows)}" + (f" ({', '.join(wrong)})" if wrong else "")
+
+
 def _matrix(doc: dict) -> list[tuple[str, str, str]]:
     out = []
     targets = {"sim": ">= 95 %", "mujoco": ">= 90 %"}
@@ -99,14 +108,17 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
                        f"{s['right_head_above_truth']} cases >= 70 %), joints "
                        f"{_pct(s['median_joint_closed_above_truth'])} ({s['right_joints_closed_70_above_truth']} of "
                        f"{s['right_joints_above_truth']})")
+        hidden = [r for r in mine if r["level"] in ("realistic", "near_limit")]
         out.append((f"missing effect named first, {where} (seeds {', '.join(map(str, doc['meta']['seeds']))})",
                     f"{_pct(s['named_first_rate'])} ({', '.join(levels)}); {_pct(s['false_positive_rate'])} "
-                    f"false positives on {len(nulls)} nulls{shrink}",
-                    f"{targets.get(s['engine'], '-')}; none; gap >= 70 % smaller"))
+                    f"false positives on {len(nulls)} nulls; an effect not hidden named in "
+                    f"{_not_hidden(hidden)}{shrink}",
+                    f"{targets.get(s['engine'], '-')}; none; none; gap >= 70 % smaller"))
         pairs = [r for r in mine if r["level"] == "pair"]
         if pairs:
             out.append((f"two effects hidden together, both named, {where}",
-                        f"{sum(r['all_named'] for r in pairs)} of {len(pairs)} pairs", ">= 80 %"))
+                        f"{sum(r['all_named'] for r in pairs)} of {len(pairs)} pairs; an effect not hidden named "
+                        f"in {_not_hidden(pairs)}", ">= 80 %; none"))
     return out
 
 

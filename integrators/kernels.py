@@ -862,6 +862,118 @@ def nonnegative_qp_into(M, r, f, free, idx, sub, L, rs, zs, z):
     return 3 * m + 10
 
 
+#: A soft contact solve with more rows than this many per velocity solves through the velocities
+#: (:func:`nonnegative_qp_through_velocities_into`): its free sets' systems then cost about
+#: ``k nv^2 + nv^3`` against ``k^3 / 3`` for the ``k`` rows' own (and ``A``, ``m^2 nv``, is not
+#: formed). Measured on COBRA's states (``docs/benchmarks.md``, "Simulation speed").
+THROUGH_VELOCITIES_ROWS_PER_VELOCITY = 4
+
+
+@njit(cache=True)
+def nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, f, free, z, scratch):
+    """:func:`nonnegative_qp` for ``M = rows D^-1 rows^T + diag(reg)`` without forming ``M``:
+    the same active-set method, each free set ``F``'s system solved through the velocities by
+    Woodbury's identity, as MuJoCo's primal solvers work,
+
+        z_F = (r_F - J_F y) / reg_F,   (D + J_F^T diag(1 / reg_F) J_F) y = J_F^T (r_F / reg_F),
+
+    (``J = rows``, ``D = Minv^-1`` the mass matrix), and a bound row's ``(M f - r)_j`` as
+    ``W_j . (J^T f) - r_j`` (``W = J D^-1``). The forces are the row system's to roundoff; a
+    solve costs ``O(k nv^2 + nv^3)`` for ``k`` free rows, against ``O(k^3)``: cheaper when the
+    rows outnumber the velocities severalfold.
+
+    Args:
+        rows: ``J`` (m, nv); ``W``: ``J D^-1`` (m, nv); ``reg``: (m,) the rows' regulariser
+            ``R`` (> 0); ``Minv``: ``D^-1`` (nv, nv), both triangles filled.
+        r, f: as :func:`nonnegative_qp` (``f`` the start on entry, the solution on return).
+        free: (at least m,) bool; ``z``: (at least m,); ``scratch``: :func:`soft_scratch`'s
+            last entry (``D``, the system and its factor (nv, nv), two (m nv) buffers and three
+            (nv,) vectors), every entry written before it is read.
+
+    Returns:
+        the number of iterations.
+    """
+    m, nv = rows.shape
+    D, S, LS, G_buf, F_buf, b, y, u = scratch
+    spd_factor(Minv, nv, LS)          # D = (D^-1)^-1, column by column
+    for c in range(nv):
+        for i in range(nv):
+            b[i] = 0.0
+        b[c] = 1.0
+        spd_substitute(LS, b, nv, y)
+        for i in range(nv):
+            D[i, c] = y[i]
+    for j in range(m):
+        free[j] = f[j] > 0.0
+    scale = 1e-12 * (max_abs(r) + 1e-300)
+    for it in range(1, 3 * m + 10):
+        # the best point with the bound rows at zero, approached as far as f stays >= 0
+        while True:
+            k = 0
+            for j in range(m):
+                if free[j]:
+                    k += 1
+            for j in range(m):
+                z[j] = 0.0
+            if k > 0:
+                G = G_buf[:nv * k].reshape((nv, k))       # J_F^T diag(1 / reg_F)
+                JF = F_buf[:k * nv].reshape((k, nv))      # J_F
+                for i in range(nv):
+                    b[i] = 0.0
+                a = 0
+                for j in range(m):
+                    if free[j]:
+                        s = 1.0 / reg[j]
+                        for i in range(nv):
+                            JF[a, i] = rows[j, i]
+                            G[i, a] = rows[j, i] * s
+                            b[i] += rows[j, i] * (r[j] * s)
+                        a += 1
+                np.dot(G, JF, S)
+                for i in range(nv):
+                    for c in range(i + 1):
+                        S[i, c] += D[i, c]
+                spd_factor(S, nv, LS)
+                spd_substitute(LS, b, nv, y)
+                for j in range(m):
+                    if free[j]:
+                        jy = 0.0
+                        for i in range(nv):
+                            jy += rows[j, i] * y[i]
+                        z[j] = (r[j] - jy) / reg[j]
+            alpha = 1.0
+            for j in range(m):
+                if free[j] and z[j] < 0.0:
+                    alpha = min(alpha, f[j] / (f[j] - z[j]))
+            for j in range(m):
+                f[j] += alpha * (z[j] - f[j])
+            if alpha >= 1.0:
+                break
+            for j in range(m):
+                if free[j] and f[j] <= 1e-15:
+                    f[j] = 0.0
+                    free[j] = False
+        # the bound row that most wants a force joins: (M f - r)_j = W_j . J^T f - r_j (f_j = 0)
+        for i in range(nv):
+            u[i] = 0.0
+        for j in range(m):
+            if f[j] != 0.0:
+                for i in range(nv):
+                    u[i] += rows[j, i] * f[j]
+        w_min, j_min = -scale, -1
+        for j in range(m):
+            if not free[j]:
+                w = -r[j]
+                for i in range(nv):
+                    w += W[j, i] * u[i]
+                if w < w_min:
+                    w_min, j_min = w, j
+        if j_min < 0:
+            return it
+        free[j_min] = True
+    return 3 * m + 10
+
+
 @njit(cache=True)
 def soft_contact_rows(nv, floating, parents, vidx, f_body, X, kin_R, kin_v, v, mu1, mu2, elliptic=False):
     """The constraint rows of every touching point (``X[k, 2] < 0``), in feature order.
@@ -1197,12 +1309,15 @@ def soft_scratch(n_features: int, nv: int):
     (each step allocated 17 arrays: 8.9 -> 8.5 us per step on the pyramid, the same arithmetic).
 
     Returns the tuple ``(rows, depth, drift, Jp, f, weight, W, A, rhs, free, idx, sub, L, rs, zs,
-    z)`` that :func:`soft_contact_acceleration` unpacks; :func:`soft_elliptic_acceleration` uses
-    its first seven (the elliptic cone's three rows a point fit in the pyramid's four)."""
+    z, reg, through)`` that :func:`soft_contact_acceleration` unpacks (``through``: the arrays of
+    :func:`nonnegative_qp_through_velocities_into`); :func:`soft_elliptic_acceleration` uses its
+    first seven (the elliptic cone's three rows a point fit in the pyramid's four)."""
     m = 4 * n_features
     return (np.empty(m * nv), np.empty(m), np.empty(m), np.empty((3, nv)), np.empty(m), np.empty(n_features),
             np.empty(m * nv), np.empty(m * m), np.empty(m), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.int64),
-            np.empty((m, m)), np.empty((m, m)), np.empty(m), np.empty(m), np.empty(m))
+            np.empty((m, m)), np.empty((m, m)), np.empty(m), np.empty(m), np.empty(m), np.empty(m),
+            (np.empty((nv, nv)), np.empty((nv, nv)), np.empty((nv, nv)), np.empty(m * nv), np.empty(m * nv),
+             np.empty(nv), np.empty(nv), np.empty(nv)))
 
 
 @njit(cache=True, inline="always")
@@ -1275,6 +1390,10 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
     method (:func:`nonnegative_qp`) from the last step's forces; the solution is unique
     (``A + R`` is positive definite). (Gauss-Seidel sweeps, MuJoCo's PGS, stall here: a
     contact's four edges are nearly parallel and so are the two contacts of one module.)
+    With more than :data:`THROUGH_VELOCITIES_ROWS_PER_VELOCITY` rows per velocity (a robot at
+    rest on all its ends: COBRA's 24 ends give 96 rows for 17 velocities) the same method
+    solves each free set through the velocities' system instead
+    (:func:`nonnegative_qp_through_velocities_into`) and ``A`` is never formed.
 
     Args:
         v: velocity (nv,).
@@ -1302,27 +1421,32 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
     if m == 0:
         return 0
     mu1, tc = ground[G_MU_C], ground[G_TC]
-    W_buf, A_buf, rhs_buf, free, idx, sub, L, rs, zs, z = scratch[6:]
+    W_buf, A_buf, rhs_buf, free, idx, sub, L, rs, zs, z, reg_buf, through = scratch[6:]
     W = W_buf[:m * nv].reshape((m, nv))
     np.dot(rows, Minv, W)             # rows D^-1, D^-1 symmetric
-    A = A_buf[:m * m].reshape((m, m))
-    np.dot(W, rows.T, A)
     d_max = SOFT_SOLIMP[1]
     bcoef = 2.0 / (d_max * tc)
     kcoef = 1.0 / (d_max * d_max * tc * tc * SOFT_DAMPRATIO * SOFT_DAMPRATIO)
-    rhs = rhs_buf[:m]
+    rhs, reg = rhs_buf[:m], reg_buf[:m]
     for r0 in range(0, m, 4):         # one contact: its four edges share the depth and impedance
         d = soft_impedance(depth[r0])
-        reg = 2.0 * mu1 * mu1 * (1.0 - d) / d * (1.0 + mu1 * mu1) * weight[r0 // 4]
+        edge_reg = 2.0 * mu1 * mu1 * (1.0 - d) / d * (1.0 + mu1 * mu1) * weight[r0 // 4]
         for j in range(r0, r0 + 4):
-            A[j, j] += reg
+            reg[j] = edge_reg
             jv = 0.0
             ja = 0.0
             for col in range(nv):
                 jv += rows[j, col] * v[col]
                 ja += rows[j, col] * a[col]
             rhs[j] = -bcoef * jv - kcoef * d * depth[j] - drift[j] - ja
-    iterations = nonnegative_qp_into(A, rhs, f, free, idx, sub, L, rs, zs, z)
+    if m > THROUGH_VELOCITIES_ROWS_PER_VELOCITY * nv:
+        iterations = nonnegative_qp_through_velocities_into(rows, W, reg, Minv, rhs, f, free, z, through)
+    else:
+        A = A_buf[:m * m].reshape((m, m))
+        np.dot(W, rows.T, A)
+        for j in range(m):
+            A[j, j] += reg[j]
+        iterations = nonnegative_qp_into(A, rhs, f, free, idx, sub, L, rs, zs, z)
     _store_warm(X, f, 4, warm)
     for col in range(nv):
         acc = 0.0

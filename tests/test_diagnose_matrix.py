@@ -11,7 +11,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, MUJOCO_CONTACTS, Job,  # noqa: E402
+from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, EVAL_SEEDS, MUJOCO_CONTACTS, Job,  # noqa: E402
                                         finished_rows, gap_at_truth, job_key, jobs_for, make_runs, near_limit,
                                         summary, truth_params)
 from benchmarks.effect_signal import ENCODER_FLOOR_RAD, HEAD_FLOOR_M, signal  # noqa: E402
@@ -46,6 +46,15 @@ def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_expre
     nulls = [j for j in sim if j.effect is None]
     assert [j.seed for j in nulls] == [31, 32, 1031]  # distinct data for every null
     assert {j.magnitude for j in sim if j.effect == "actuator_delay"} == {0.04, 0.01}
+
+
+def test_the_reported_seeds_are_none_the_workflow_was_developed_on() -> None:
+    """Every dataset of a default run (effects, nulls, pairs) is drawn from a seed that no
+    development looked at: the evaluation seeds, and the nulls' seeds beyond them."""
+    jobs = jobs_for(["sim", "mujoco"], ["backlash", "actuator_delay", "encoder_offset"], ["realistic"],
+                    list(EVAL_SEEDS), 6, 3.0, pairs=True)
+    assert {j.seed for j in jobs}.isdisjoint(DEV_SEEDS)
+    assert {31, 32, 33} <= set(DEV_SEEDS)  # the evaluation seeds until mechanisms were found on their misses
 
 
 def test_near_limit_magnitudes_are_a_quarter_of_the_way_from_where_each_effect_starts_to_act() -> None:

@@ -11,7 +11,7 @@ def _git(repo: Path, *args: str) -> str:
     return subprocess.run(["git", "-C", str(repo), *args], capture_output=True, text=True, check=True).stdout.strip()
 
 
-def test_the_commit_is_marked_modified_by_a_code_change_not_by_results_or_prose(tmp_path, monkeypatch):
+def test_the_commit_is_the_codes_and_marked_modified_by_a_code_change_not_by_results_or_prose(tmp_path, monkeypatch):
     repo = tmp_path / "repo"
     (repo / "benchmarks" / "results").mkdir(parents=True)
     _git(tmp_path, "init", "-q", str(repo))
@@ -26,8 +26,14 @@ def test_the_commit_is_marked_modified_by_a_code_change_not_by_results_or_prose(
     (repo / "benchmarks" / "results" / "speed.json").write_text("2\n")
     (repo / "notes.py").write_text("untracked\n")
     assert results.code_commit() == head
+    _git(repo, "add", "README.md", "benchmarks")  # prose and results committed: the code is the same
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "docs")
+    assert results.code_commit() == head
     (repo / "kernels.py").write_text("2\n")  # the code measured is not the commit's
     assert results.code_commit() == head + "+modified"
+    _git(repo, "add", ".")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "code")
+    assert results.code_commit() == _git(repo, "rev-parse", "--short=7", "HEAD") != head
     monkeypatch.setattr(results, "REPO", tmp_path / "not a checkout")
     assert results.code_commit() is None
 

@@ -153,6 +153,74 @@ def test_cholesky_solves_the_contact_solvers_systems():
     assert np.isnan(x).all()
 
 
+def test_the_solve_through_the_velocities_is_the_row_systems():
+    """The pyramid's active-set method with each free set solved through the velocities
+    (Woodbury's identity) against the same method on the formed row system, on random problems
+    of 1-100 rows and 3-17 velocities: the same forces to roundoff, the same iterations, and
+    the complementarity conditions hold."""
+    rng = np.random.default_rng(11)
+    for trial in range(30):
+        nv, m = int(rng.integers(3, 18)), int(rng.integers(1, 100))
+        B = rng.normal(size=(nv, nv))
+        Minv = np.linalg.inv(B @ B.T + nv * np.eye(nv))
+        Minv = (Minv + Minv.T) / 2
+        rows, reg, r = rng.normal(size=(m, nv)), rng.uniform(0.01, 1.0, m), 3.0 * rng.normal(size=m)
+        W = rows @ Minv
+        A = W @ rows.T + np.diag(reg)
+        start = np.abs(rng.normal(size=m)) * (trial % 2)
+        direct, through = start.copy(), start.copy()
+        iterations = K.nonnegative_qp(A, r, direct)
+        assert K.nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, through, np.empty(m, dtype=np.bool_),
+                                                        np.empty(m), K.soft_scratch(m, nv)[-1]) == iterations
+        np.testing.assert_allclose(through, direct, rtol=0, atol=1e-12 * np.abs(direct).max())
+        w = A @ through - r
+        assert through.min() >= 0 and w.min() > -1e-9 * np.abs(r).max()
+        assert abs(through @ w) < 1e-9 * np.abs(r).max() * max(np.abs(through).max(), 1.0)
+
+
+def test_on_all_its_ends_cobras_pyramid_is_solved_through_the_velocities(cobra):
+    """Every end touching (96 rows for 17 velocities, as at rest): the contact acceleration the
+    compiled law returns, by the solve through the velocities, is the docstring's system solved
+    on the formed rows, to roundoff."""
+    sim = Simulator(cobra, soft(ModelParameters.nominal()))
+    rng = np.random.default_rng(2)
+    q = sim.rest_state(np.zeros(cobra.n_joints), heading_rad=0.2).q
+    q[2] -= 0.004                                             # lying straight: every end touches
+    v = rng.normal(scale=0.1, size=cobra.nv)
+    tau, n = np.empty(cobra.nv), cobra.n_joints
+    K.pre_step(True, q, v, np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n, dtype=np.bool_),
+               sim.act, sim.scal, sim.ground, True, sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i,
+               sim._feat_f, tau, np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v)
+    pm, data = cobra.pin_model, cobra.pin_model.createData()
+    a0 = pin.aba(pm, data, q, v, tau, pin.Convention.WORLD).copy()
+    Minv = pin.computeMinverse(pm, data)
+    Minv = np.triu(Minv) + np.triu(Minv, 1).T
+    g = sim.ground
+    mu1, tc = g[K.G_MU_C], g[K.G_TC]
+    rows, depth, drift = K.soft_contact_rows(cobra.nv, True, sim._chain_i[:, 0], sim._chain_i[:, 2],
+                                             sim._feat_i[:, 0], sim._X, sim._kin_R, sim._kin_v, v, mu1,
+                                             mu1 * g[K.G_LATERAL])
+    m = rows.shape[0]
+    assert m > K.THROUGH_VELOCITIES_ROWS_PER_VELOCITY * cobra.nv
+    touching = np.flatnonzero(sim._X[:, 2] < 0)
+    d = np.array([K.soft_impedance(x) for x in depth])
+    weight = np.repeat(cobra.reference_weights[sim._feat_i[touching, 0]], 4)
+    reg = 2 * mu1 ** 2 * (1 - d) / d * (1 + mu1 ** 2) * weight
+    d_max = K.SOFT_SOLIMP[1]
+    rhs = (-2 / (d_max * tc) * rows @ v - d * depth / (d_max * tc * K.SOFT_DAMPRATIO) ** 2 - drift - rows @ a0)
+    f = np.zeros(m)
+    K.nonnegative_qp(rows @ Minv @ rows.T + np.diag(reg), rhs, f)
+    expected = a0 + Minv @ rows.T @ f
+    a = a0.copy()
+    warm = np.zeros((len(sim._feat_i), 4))
+    K.soft_contact_acceleration(v, pin.computeMinverse(pm, data).copy(), True, sim._chain_i[:, 0],
+                                sim._chain_i[:, 2], sim._feat_i[:, 0], sim._X, sim._kin_R, sim._kin_v, g,
+                                cobra.reference_weights, warm, a, K.soft_scratch(len(sim._feat_i), cobra.nv))
+    np.testing.assert_allclose(a, expected, rtol=0, atol=1e-9 * np.abs(expected).max())
+    assert np.abs(expected - a0).max() > 1.0                 # the contact forces matter
+    np.testing.assert_allclose(warm[touching].ravel(), f, rtol=0, atol=1e-9 * f.max())
+
+
 def test_edge_rows_are_pinocchios_contact_jacobian(cobra):
     sim = Simulator(cobra, soft(ModelParameters.nominal()))
     rng = np.random.default_rng(0)
