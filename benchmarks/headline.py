@@ -335,6 +335,9 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   "sixty-first stop"): diagnoses in which a round named nothing; the others bit for bit.
 #: - The confusion matrix's seeds 31-33 became development seeds (mechanisms were found on their
 #:   misses) and its figures come from seeds 34-36 (CHANGELOG "sixty-second stop"): every matrix.
+#: - The pyramid's solve with more than four rows per velocity goes through the velocities
+#:   (``integrators.kernels.nonnegative_qp_through_velocities_into``; CHANGELOG "sixty-second
+#:   stop"): the last bits of every soft-law rollout (each starts at rest on its ends).
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -439,6 +442,10 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-12-05T05:20", "1fc59a4", "figures from seeds 31-33, which mechanisms were found on",
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff")),
+    ("2026-12-05T07:10", "dbe43b4", "the pyramid's solve through the velocities on many rows (soft law's last bits)",
+     ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff",
+      "mujoco_robustness_soft_constraint", "mujoco_fit_residual", "mujoco_fit_residual_stiff", "contact_law",
+      "contact_step", "channel_weighting", "sim_speed")),
 )
 
 

@@ -138,3 +138,27 @@ def test_runs_and_horizons_of_different_lengths_share_a_batch_and_keep_their_res
 
     got = run_together([ask(uneven), ask(short)])
     assert np.array_equal(got[0], uneven.residuals(x)) and np.array_equal(got[1], short.residuals(x))
+
+
+
+
+def test_a_computation_that_diverges_leaves_its_alternatives(runs):
+    """Computations run side by side as alternatives (a refit's starts): one whose simulation
+    diverges gives None through ``unless_diverged`` and the others their results, stepped
+    together as before; left bare, its divergence is the error it always was."""
+    from integrators.simulator import SimulationDiverged
+    from sysid.identification.lockstep import unless_diverged
+    from sysid.identification.lsq import fit_lsq_steps
+
+    train, _ = runs
+
+    def diverging():
+        yield Evaluate(Objective(train, NOMINAL), NOMINAL.as_vector()[None, :])
+        raise SimulationDiverged("at t = 0.1920 s contact point head:front penetrated 3.05 cm into the ground")
+
+    alone = run(fit_lsq_steps(Objective(train, NOMINAL), max_iterations=1))
+    gone, fit = run_together([unless_diverged(diverging()),
+                              unless_diverged(fit_lsq_steps(Objective(train, NOMINAL), max_iterations=1))])
+    assert gone is None and fit.cost == alone.cost
+    with pytest.raises(SimulationDiverged, match="penetrated"):
+        run_together([diverging(), fit_lsq_steps(Objective(train, NOMINAL), max_iterations=1)])

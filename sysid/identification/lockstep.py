@@ -25,6 +25,7 @@ import numpy as np
 
 from cobra_model.errors import InputError
 from integrators.batch import Divergence
+from integrators.simulator import SimulationDiverged
 from sysid.identification.objective import Objective, residual_vector, shares_batch, simulate_together
 
 T = TypeVar("T")
@@ -47,6 +48,16 @@ Steps = Generator[Evaluate, np.ndarray, T]
 def run(steps: Steps[T]) -> T:
     """The result of one computation, each of its requests evaluated on its own."""
     return _drive([steps], lambda requests: [_alone(r) for r in requests])[0]
+
+
+def unless_diverged(steps: Steps[T]) -> Steps[T | None]:
+    """``steps``' result, or None when a simulation it asked for diverged and it did not handle
+    that itself (a fit whose start no simulation follows): for computations run side by side
+    as alternatives (:func:`run_together`), where one that cannot start leaves the others."""
+    try:
+        return (yield from steps)
+    except SimulationDiverged:
+        return None
 
 
 def run_together(computations: Sequence[Steps], finished: Callable[[int], None] = lambda i: None) -> list:
