@@ -790,6 +790,26 @@ def max_abs(x) -> float:
     return largest
 
 
+@njit(cache=True, inline="always")
+def _move_towards(f, z, free) -> bool:
+    """The active-set method's step (:func:`nonnegative_qp`): ``f`` moved towards ``z`` (the best
+    point with the bound rows at zero) as far as ``f`` stays >= 0; True when it reached ``z``,
+    else the free rows it brought to zero are bound."""
+    alpha = 1.0
+    for j in range(f.shape[0]):
+        if free[j] and z[j] < 0.0:
+            alpha = min(alpha, f[j] / (f[j] - z[j]))
+    for j in range(f.shape[0]):
+        f[j] += alpha * (z[j] - f[j])
+    if alpha >= 1.0:
+        return True
+    for j in range(f.shape[0]):
+        if free[j] and f[j] <= 1e-15:
+            f[j] = 0.0
+            free[j] = False
+    return False
+
+
 @njit(cache=True)
 def nonnegative_qp(M, r, f):
     """The LCP ``f >= 0, w = M f - r >= 0, f . w = 0`` for a positive definite ``M`` (m, m): the
@@ -833,20 +853,8 @@ def nonnegative_qp_into(M, r, f, free, idx, sub, L, rs, zs, z):
                 spd_substitute(L, rs, k, zs)
                 for a in range(k):
                     z[idx[a]] = zs[a]
-            alpha = 1.0
-            for a in range(k):
-                j = idx[a]
-                if z[j] < 0.0:
-                    alpha = min(alpha, f[j] / (f[j] - z[j]))
-            for j in range(m):
-                f[j] += alpha * (z[j] - f[j])
-            if alpha >= 1.0:
+            if _move_towards(f, z, free):
                 break
-            for a in range(k):
-                j = idx[a]
-                if f[j] <= 1e-15:
-                    f[j] = 0.0
-                    free[j] = False
         # the bound row that most wants a force joins
         w_min, j_min = -scale, -1
         for j in range(m):
@@ -941,18 +949,8 @@ def nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, f, free, z, sc
                         for i in range(nv):
                             jy += rows[j, i] * y[i]
                         z[j] = (r[j] - jy) / reg[j]
-            alpha = 1.0
-            for j in range(m):
-                if free[j] and z[j] < 0.0:
-                    alpha = min(alpha, f[j] / (f[j] - z[j]))
-            for j in range(m):
-                f[j] += alpha * (z[j] - f[j])
-            if alpha >= 1.0:
+            if _move_towards(f, z, free):
                 break
-            for j in range(m):
-                if free[j] and f[j] <= 1e-15:
-                    f[j] = 0.0
-                    free[j] = False
         # the bound row that most wants a force joins: (M f - r)_j = W_j . J^T f - r_j (f_j = 0)
         for i in range(nv):
             u[i] = 0.0
