@@ -810,6 +810,18 @@ def _move_towards(f, z, free) -> bool:
     return False
 
 
+@njit(cache=True, inline="always")
+def _joining_row(w, free, m, scale) -> int:
+    """The active-set method's next free row (:func:`nonnegative_qp`): of the first ``m`` rows,
+    the bound one whose ``w = (M f - r)_j`` (in ``w``) is the most negative, below ``-scale``;
+    -1 when none is (the solution)."""
+    w_min, j_min = -scale, -1
+    for j in range(m):
+        if not free[j] and w[j] < w_min:
+            w_min, j_min = w[j], j
+    return j_min
+
+
 @njit(cache=True)
 def nonnegative_qp(M, r, f):
     """The LCP ``f >= 0, w = M f - r >= 0, f . w = 0`` for a positive definite ``M`` (m, m): the
@@ -855,15 +867,14 @@ def nonnegative_qp_into(M, r, f, free, idx, sub, L, rs, zs, z):
                     z[idx[a]] = zs[a]
             if _move_towards(f, z, free):
                 break
-        # the bound row that most wants a force joins
-        w_min, j_min = -scale, -1
+        # the bound row that most wants a force joins: (M f - r)_j of the bound rows into z
         for j in range(m):
             if not free[j]:
                 w = -r[j]
                 for c in range(m):
                     w += M[j, c] * f[c]
-                if w < w_min:
-                    w_min, j_min = w, j
+                z[j] = w
+        j_min = _joining_row(z, free, m, scale)
         if j_min < 0:
             return it
         free[j_min] = True
@@ -958,14 +969,13 @@ def nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, f, free, z, sc
             if f[j] != 0.0:
                 for i in range(nv):
                     u[i] += rows[j, i] * f[j]
-        w_min, j_min = -scale, -1
         for j in range(m):
             if not free[j]:
                 w = -r[j]
                 for i in range(nv):
                     w += W[j, i] * u[i]
-                if w < w_min:
-                    w_min, j_min = w, j
+                z[j] = w
+        j_min = _joining_row(z, free, m, scale)
         if j_min < 0:
             return it
         free[j_min] = True

@@ -140,8 +140,6 @@ def test_runs_and_horizons_of_different_lengths_share_a_batch_and_keep_their_res
     assert np.array_equal(got[0], uneven.residuals(x)) and np.array_equal(got[1], short.residuals(x))
 
 
-
-
 def test_a_computation_that_diverges_leaves_its_alternatives(runs):
     """Computations run side by side as alternatives (a refit's starts): one whose simulation
     diverges gives None through ``unless_diverged`` and the others their results, stepped

@@ -1049,16 +1049,6 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
                              augmented, hold1_runs, len(trial.free_names) - len(current.free_names),
                              implausible=effect.implausible(value))
 
-        def candidate_unless_diverged(name: str, base: str) -> Steps[Candidate | None]:
-            """:func:`candidate`, or None when a simulation its screening asked for diverged (a
-            start no simulation follows, such as a payload on a ground fitted without it): that
-            effect is not a candidate of this base, and the diagnosis goes on with the others."""
-            try:
-                return (yield from candidate(name, base))
-            except SimulationDiverged as exc:
-                progress(f"round {round_ + 1}: {name}: its screening's simulation diverged ({exc}); not screened")
-                return None
-
         # the baseline every candidate is measured against: the current model as it is, and refitted
         # alone as a candidate is (a fit that had not yet converged must not make every effect look
         # useful). The candidates are independent: their evaluations share batches, with results
@@ -1069,7 +1059,13 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
         hold_current, (null, hold_null), *screened = run_together(
             [_held_out_costs(current, holdout, weights),
              _screen_refit(current, fit_set, holdout, config.screen_iterations, weights)]
-            + [candidate_unless_diverged(name, base) for name, base in screens],
+            # a candidate whose screening diverged (a start no simulation follows, such as a
+            # payload on a ground fitted without it) is not one of this base; the others go on
+            + [unless_diverged(candidate(name, base),
+                               lambda exc, name=name, round_=round_: progress(
+                                   f"round {round_ + 1}: {name}: its screening's simulation diverged ({exc}); "
+                                   "not screened"))
+               for name, base in screens],
             finished=lambda i, round_=round_: progress(f"round {round_ + 1}: {labels[i]} done"))
         # of an effect screened from two bases, the refit of lower training cost
         candidates = [min(found, key=lambda c: c.train_cost) for name in remaining

@@ -50,13 +50,16 @@ def run(steps: Steps[T]) -> T:
     return _drive([steps], lambda requests: [_alone(r) for r in requests])[0]
 
 
-def unless_diverged(steps: Steps[T]) -> Steps[T | None]:
+def unless_diverged(steps: Steps[T], diverged: Callable[[SimulationDiverged], None] = lambda exc: None
+                    ) -> Steps[T | None]:
     """``steps``' result, or None when a simulation it asked for diverged and it did not handle
-    that itself (a fit whose start no simulation follows): for computations run side by side
-    as alternatives (:func:`run_together`), where one that cannot start leaves the others."""
+    that itself (a fit whose start no simulation follows), after ``diverged(error)`` (to report
+    it): for computations run side by side as alternatives (:func:`run_together`), where one
+    that cannot start leaves the others."""
     try:
         return (yield from steps)
-    except SimulationDiverged:
+    except SimulationDiverged as exc:
+        diverged(exc)
         return None
 
 
