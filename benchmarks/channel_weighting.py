@@ -35,7 +35,7 @@ Seeds: none was used to develop anything here (the script measures, it tunes not
 on the matrix's evaluation seeds (``benchmarks.diagnose_matrix.EVAL_SEEDS``; its development seed is 21).
 
 Writes ``benchmarks/results/channel_weighting.{json,md,png}`` (the PNG: each value by case and weighting).
-Run: ``.venv/bin/python benchmarks/channel_weighting.py [--seeds 34,35,36] [--cases sim,twin-compliant,...]``.
+Run: ``.venv/bin/python benchmarks/channel_weighting.py [--seeds 37,38,39] [--cases sim,twin-compliant,...]``.
 """
 from __future__ import annotations
 

@@ -20,7 +20,7 @@ A ratio below 1 on both channels means the effect moves the data by less than it
 method can be asked to name it from these runs.
 
 Writes ``benchmarks/results/effect_signal.{json,md}``.
-Run: ``.venv/bin/python benchmarks/effect_signal.py [--engines sim,mujoco] [--seeds 34,35,36]``.
+Run: ``.venv/bin/python benchmarks/effect_signal.py [--engines sim,mujoco] [--seeds 37,38,39]``.
 """
 from __future__ import annotations
 

@@ -37,7 +37,9 @@
    parameters, without a refit, the held-out cost must rise by ``min_improvement``, at the
    parameters as they are and at microscopic perturbations of them alike (on a stiff ground a
    single rollout's cost is rough at scales no data resolve). An effect at or near its inactive
-   value is the same model switched off, so its share is nil and it is not named.
+   value is the same model switched off, so its share is nil and it is not named; nor is one
+   closer to it than the hardware resolves (:meth:`sysid.discrepancy.effects.Effect.unresolved`:
+   a backlash narrower than the encoder count that every Dynamixel's loop already acts on).
    A candidate that would be named but whose fitted value is no physical value of its effect
    (:meth:`sysid.discrepancy.effects.Effect.implausible`) is a proxy for a difference of another structure:
    it is reported in ``structural`` and the verdict, not named, and the next candidate is checked.
@@ -147,7 +149,9 @@ class Candidate:
     the effect (:func:`choose`), and ``effect_share`` then gives the held-out improvement its
     effect carries itself (:func:`effect_share`; None: not measured); ``implausible`` says why
     its fitted value is no physical value of the effect
-    (:meth:`sysid.discrepancy.effects.Effect.implausible`; None: it is one); ``whole_runs`` that
+    (:meth:`sysid.discrepancy.effects.Effect.implausible`; None: it is one), ``unresolved`` why it
+    is too close to the inactive value to be told from the hardware without the effect
+    (:meth:`sysid.discrepancy.effects.Effect.unresolved`; None: it is not); ``whole_runs`` that
     its evidence is that of its refit on the whole training runs (:func:`second_look`), not of
     its screening refit. The evidence fields are relative to a :class:`Baseline` (:meth:`judged`).
     """
@@ -168,6 +172,7 @@ class Candidate:
     implausible: str | None = None
     effect_share: float | None = None
     whole_runs: bool = False
+    unresolved: str | None = None
 
     def to_json(self) -> dict:
         return {"name": self.name, "value": self.value, "unit": self.unit,
@@ -175,7 +180,8 @@ class Candidate:
                 "delta_bic": self.delta_bic,
                 "signature_match": self.signature_match, "train_cost": self.train_cost,
                 "held_out_cost": self.held_out_cost, "refit_without_effect": self.refit_without,
-                "effect_share": self.effect_share, "implausible": self.implausible, "whole_runs": self.whole_runs}
+                "effect_share": self.effect_share, "implausible": self.implausible, "unresolved": self.unresolved,
+                "whole_runs": self.whole_runs}
 
     def judged(self, baseline: "Baseline", n: int) -> "Candidate":
         """This candidate's evidence against ``baseline`` (``n`` training residuals, for dBIC)."""
@@ -657,7 +663,9 @@ def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: 
     checked in the same way. A significant head that is implausible is set aside as a proxy (it
     bends the model towards a difference of another structure, such as another engine's or the
     real ground's contact), and one whose effect carries too little itself is set aside too (its
-    improvement is its other parameters'); then the next candidate is checked.
+    improvement is its other parameters'), as is one whose value is closer to the inactive one
+    than the hardware resolves (``unresolved``: its improvement is another effect's, or what the
+    hardware does anyway); then the next candidate is checked.
     """
     pending, set_aside, proxies = list(candidates), [], []
     while True:
@@ -666,6 +674,10 @@ def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: 
         if not ranked or not significant(ranked[0], config):
             return None, every, proxies, baseline
         top = ranked[0]
+        if top.unresolved:
+            set_aside.append(top)
+            pending = [c for c in pending if c.name != top.name]
+            continue
         if top.implausible:
             proxies.append(top)
             pending = [c for c in pending if c.name != top.name]
@@ -878,7 +890,7 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
     (returned with that fit) only on the evidence :func:`choose` asks for, measured on the whole
     runs: the held-out cost down by ``min_improvement`` against the baseline joined with the
     whole runs' refit of its model without the effect, every held-out run improved, the
-    training runs' ``dBIC < bic_threshold`` against that refit, a physical value, and the effect
+    training runs' ``dBIC < bic_threshold`` against that refit, a physical value resolved from none, and the effect
     carrying ``min_improvement`` of the held-out cost itself (:func:`effect_share`).
 
     Returns:
@@ -900,7 +912,8 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
     kg with the held-out cost 27 % down, and the next round named the anisotropy; the final model
     holds 0.801 kg and 1.997 (held-out head 52.9 -> 0.3 mm).
     """
-    c = min((c for c in candidates if c.implausible is None and c.delta_bic < config.bic_threshold
+    c = min((c for c in candidates if c.implausible is None and c.unresolved is None
+             and c.delta_bic < config.bic_threshold
              and c.train_cost <= (1.0 - config.min_improvement) * baseline.train_rss),
             key=lambda c: c.delta_bic, default=None)
     if c is None:
@@ -921,8 +934,10 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
     looked = replace(on, held_out_improvement=1.0 - float(hold.sum()) / float(joined.held_out_runs.sum()),
                      runs_improved=float(np.mean(hold < joined.held_out_runs)), delta_bic=float(dbic),
                      train_cost=2.0 * fit.cost, held_out_cost=float(hold.sum()), held_out_runs=hold,
-                     refit_without=True, implausible=effect.implausible(value), effect_share=share, whole_runs=True)
-    named = looked.implausible is None and significant(looked, config) and share >= config.min_improvement
+                     refit_without=True, implausible=effect.implausible(value), effect_share=share, whole_runs=True,
+                     unresolved=effect.unresolved(value))
+    named = (looked.implausible is None and looked.unresolved is None and significant(looked, config)
+             and share >= config.min_improvement)
     progress(f"{c.name} on the whole runs: {effect.parameter.name} = {value:.4g} {effect.parameter.unit}, held-out cost "
              f"{-100 * looked.held_out_improvement:+.0f} %, its own share {100 * share:.0f} %, dBIC {dbic:.0f}: "
              + ("named" if named else "not named"))
@@ -1047,7 +1062,7 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
             return Candidate(name, value, effect.parameter.unit, 0.0, 0.0, 0.0,
                              signature_match(effect, result.signature), 2.0 * fit.cost, float(hold1_runs.sum()),
                              augmented, hold1_runs, len(trial.free_names) - len(current.free_names),
-                             implausible=effect.implausible(value))
+                             implausible=effect.implausible(value), unresolved=effect.unresolved(value))
 
         # the baseline every candidate is measured against: the current model as it is, and refitted
         # alone as a candidate is (a fit that had not yet converged must not make every effect look

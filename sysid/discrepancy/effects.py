@@ -30,14 +30,16 @@ the simulator and the batch pack the arrays from those tables) and its :class:`E
 
 A fitted value outside the last column (the reasons are beside each :class:`Effect` below), or
 on a bound, is no physical value of the effect: the workflow reports it as a proxy for a
-structural difference instead of naming it (``sysid.discrepancy.diagnose.choose``).
+structural difference instead of naming it (``sysid.discrepancy.diagnose.choose``). A backlash
+narrower than one encoder count (0.0015 rad) is not named either: every Dynamixel's loop, acting
+on whole counts, has such a dead zone (``Effect.resolution``).
 """
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
 from typing import Iterable, Iterator, Mapping
 
-from cobra_model.servo import SERVO_STALL_TORQUE_NM
+from cobra_model.servo import RAD_PER_PULSE, SERVO_STALL_TORQUE_NM
 from cobra_model.errors import InputError
 from cobra_model.parameters import ModelParameters, Parameter
 from integrators.simulator import Entry, effect_parameter, entry_of
@@ -71,6 +73,12 @@ class Effect:
             that needs the effect outside them, or on one of its bounds, uses it as a proxy
             for a difference of another structure (:meth:`implausible`); the workflow then
             reports a structural difference instead of naming it.
+        resolution: the smallest departure from the inactive value (parameter units) that tells
+            the effect from what the hardware does without it, such as a servo acting on whole
+            encoder counts (None: no such floor). A fitted value closer to the inactive value is
+            no evidence of the effect, whatever it does to the cost (:meth:`unresolved`); the
+            workflow does not name it and checks the next candidate
+            (``sysid.discrepancy.diagnose.choose``).
     """
 
     name: str
@@ -83,6 +91,7 @@ class Effect:
     acts_below_demand: bool = False
     plausible: tuple[float, float] | None = None
     realistic: float | None = None
+    resolution: float | None = None
 
     @property
     def enters(self) -> Entry:
@@ -105,6 +114,15 @@ class Effect:
             if abs(z - zb) < 0.01 and abs(z_off - zb) > 0.01:
                 return f"{p.name} = {value:.4g}{unit} is at its bound {bound:g}{unit}: the fit wanted more"
         return None
+
+    def unresolved(self, value: float) -> str | None:
+        """Why ``value`` of the effect's parameter is too close to its inactive value to be told
+        from the hardware without the effect (None if it is not): within :attr:`resolution` of it."""
+        p = self.parameter
+        if self.resolution is None or abs(value - p.value) >= self.resolution:
+            return None
+        unit = "" if p.unit == "1" else f" {p.unit}"
+        return (f"{p.name} = {value:.4g}{unit} is closer to none than the hardware resolves ({self.resolution:.4g}{unit})")
 
     def parameters(self, value: float | None = None, *, frozen: bool = False) -> list[Parameter]:
         """The effect's parameter at ``value`` (default: its fitting start), free unless ``frozen``."""
@@ -129,7 +147,12 @@ EFFECTS: tuple[Effect, ...] = (
            0.005, "the servo loop does not act on the first +-b of its position error",
            "joint residuals correlated with sign(qdot), a lag of about b after each reversal",
            (("r_sign", 1.0), ("reversal_ratio", 1.0)),
-           plausible=(0.0, 0.05), realistic=0.02),  # ~3 deg: gear play (~0.25 deg) plus printed horn/coupling play
+           plausible=(0.0, 0.05), realistic=0.02,  # ~3 deg: gear play (~0.25 deg) plus printed horn/coupling play
+           # a Dynamixel's loop acts on its error in whole encoder counts: every servo has a dead
+           # zone of up to a count, which our loop (on the continuous error) lacks, and Coulomb
+           # friction behind the loop stalls it within tau_c / Kp of the goal too; a dead zone
+           # narrower than a count is one of these, not play in the gears
+           resolution=RAD_PER_PULSE),
     Effect("actuator_delay",
            effect_parameter("actuator_delay"),
            0.005, "every servo receives its command late by the delay",

@@ -43,10 +43,12 @@ def write_diagnosis_report(result: Diagnosis, out: Path) -> Path:
         page.heading(f"Candidates, round {i}")
         page.table(["effect", "fitted value", "unit", "held-out cost reduction", "held-out runs improved", "dBIC",
                     "signature match", "refitted without it", "share its effect carries", "physical value",
+                    "resolved from none",
                     "evidence from"],
                    [[c.name, c.value, c.unit, c.held_out_improvement, c.runs_improved, c.delta_bic, c.signature_match,
                      "yes" if c.refit_without else "no", "-" if c.effect_share is None else c.effect_share,
-                     c.implausible or "yes", "whole runs (second look)" if c.whole_runs else "screening"]
+                     c.implausible or "yes", c.unresolved or "yes",
+                     "whole runs (second look)" if c.whole_runs else "screening"]
                     for c in round_])
         page.paragraph("Evidence is against the best fit without a new effect: the current model refitted "
                        "alone, or a checked candidate's model refitted without its effect. The share its effect "
