@@ -448,11 +448,11 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
       "contact_step", "channel_weighting", "sim_speed")),
     # a candidate within its effect's resolution of none (a backlash under one encoder count) is
     # set aside unchecked: a diagnosis where one ranked first may name another effect
-    ("2026-12-05T08:45", "d037118", "a backlash under one encoder count named",
+    ("2026-12-05T08:14", "d037118", "a backlash under one encoder count named",
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
       "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
-    ("2026-12-05T08:45", "d037118", "figures from seeds 34-36, which mechanisms were found on",
+    ("2026-12-05T08:14", "d037118", "figures from seeds 34-36, which mechanisms were found on",
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff")),
 )
