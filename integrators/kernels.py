@@ -1104,6 +1104,50 @@ def cone_projection(p0, p1, p2, slope, H):
 
 
 @njit(cache=True, inline="always")
+def cone_projection_factor(p0, p1, p2, slope, G):
+    """:func:`cone_projection` of ``p``, with its Jacobian ``H`` as ``G^T G`` in ``G`` (3, 3):
+    the identity inside the cone, 0 inside its polar cone, and on the cone's surface the rows
+    ``sqrt(k) (1, slope e1, slope e2)`` and ``sqrt(s) (0, -e2, e1)`` over a zero row (``H`` has
+    rank 2 there: ``k u u^T + s w w^T``, with :func:`cone_projection`'s ``k``, ``s`` and ``e``)."""
+    t = np.sqrt(p1 * p1 + p2 * p2)
+    if t <= slope * p0:
+        for i in range(3):
+            for j in range(3):
+                G[i, j] = 1.0 if i == j else 0.0
+        return p0, p1, p2
+    if slope * t <= -p0:
+        G[:, :] = 0.0
+        return 0.0, 0.0, 0.0
+    k = 1.0 / (1.0 + slope * slope)
+    g0 = (p0 + slope * t) * k
+    e1, e2 = p1 / t, p2 / t
+    sk, ss = np.sqrt(k), np.sqrt(slope * g0 / t)
+    G[0, 0], G[0, 1], G[0, 2] = sk, sk * slope * e1, sk * slope * e2
+    G[1, 0], G[1, 1], G[1, 2] = 0.0, -ss * e2, ss * e1
+    G[2, 0], G[2, 1], G[2, 2] = 0.0, 0.0, 0.0
+    return g0, slope * g0 * e1, slope * g0 * e2
+
+
+@njit(cache=True, inline="always")
+def _elliptic_row_cost(lam, y, y0, aref, sR, slope, f, G):
+    """The primal cost of :func:`elliptic_contact_acceleration` at ``a = a0 + D^-1 J^T lam``,
+    given ``y = J a`` and ``y0 = J a0``: ``lam (y - y0) / 2`` (which is ``(a - a0) M (a - a0) / 2``)
+    plus the contacts' terms; the contact forces there in ``f`` and each contact's projection
+    factor (:func:`cone_projection_factor`) in ``G``."""
+    m = y.shape[0]
+    cost = 0.0
+    for j in range(m):
+        cost += 0.5 * lam[j] * (y[j] - y0[j])
+    for c in range(m // 3):
+        r = 3 * c
+        g0, g1, g2 = cone_projection_factor(-(y[r] - aref[r]) / sR[r], -(y[r + 1] - aref[r + 1]) / sR[r + 1],
+                                            -(y[r + 2] - aref[r + 2]) / sR[r + 2], slope, G[c])
+        f[r], f[r + 1], f[r + 2] = g0 / sR[r], g1 / sR[r + 1], g2 / sR[r + 2]
+        cost += 0.5 * (g0 * g0 + g1 * g1 + g2 * g2)
+    return cost
+
+
+@njit(cache=True, inline="always")
 def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Hc):
     """The primal cost of :func:`elliptic_contact_acceleration` at acceleration ``a``; the
     contact forces there in ``f`` and each contact's projection Jacobian in ``Hc``."""
@@ -1182,15 +1226,26 @@ def elliptic_scratch(n_contacts: int, nv: int):
     touching points and ``nv`` velocities: a rollout's loop makes them once, so that its steps
     allocate none of them (each step allocated 16).
 
-    Returns the tuple ``(mats, vecs, per_row, cones, per_contact_rows)``: ``mats`` (3, nv, nv)
-    the Cholesky factor, the mass matrix and the Newton matrix; ``vecs`` (5, nv) a unit vector,
-    the acceleration, the gradient, the Newton step and the line search's trial acceleration;
-    ``per_row`` (3, 3 n) the rows' ``sqrt(R)``, reference accelerations and trial forces;
-    ``cones`` (2, n, 3, 3) each contact's projection Jacobian at the current and the trial
-    acceleration; ``per_contact_rows`` (2, 3, nv) one contact's scaled rows and their product
-    with its Jacobian."""
-    return (np.empty((3, nv, nv)), np.empty((5, nv)), np.empty((3, 3 * n_contacts)),
-            np.empty((2, n_contacts, 3, 3)), np.empty((2, 3, nv)))
+    Returns the tuple ``(mats, vecs, per_row, cones, per_contact_rows, row_mats, row_vecs)``:
+    ``mats`` (3, nv, nv) the Cholesky factor, the mass matrix and the Newton matrix; ``vecs``
+    (5, nv) a unit vector, the acceleration, the gradient, the Newton step and the line search's
+    trial acceleration; ``per_row`` (3, 3 n) the rows' ``sqrt(R)``, reference accelerations and
+    trial forces; ``cones`` (2, n, 3, 3) each contact's projection Jacobian (or its factor) at the
+    current and the trial acceleration; ``per_contact_rows`` (2, 3, nv) one contact's scaled rows
+    and their product with its Jacobian; ``row_mats`` (4, (3 n)^2) and ``row_vecs`` (10, 3 n) the
+    Newton solve in the rows (:func:`_elliptic_newton_in_rows`): ``A``, ``A B^T``, the Newton
+    system and its factor, and its vectors."""
+    m = 3 * n_contacts
+    return (np.empty((3, nv, nv)), np.empty((5, nv)), np.empty((3, m)),
+            np.empty((2, n_contacts, 3, 3)), np.empty((2, 3, nv)), np.empty((4, m * m)), np.empty((10, m)))
+
+
+#: An elliptic-cone solve with at most this many rows per velocity takes its Newton steps in the
+#: contact rows (:func:`_elliptic_newton_in_rows`, ``O(m^3)`` a step for ``m`` rows), with more
+#: in the velocities (:func:`_elliptic_newton_in_velocities`, ``O(nv^3)``, and ``D``'s inverse
+#: once). Both take the same steps. Measured on COBRA's states (``docs/benchmarks.md``,
+#: "Simulation speed").
+ELLIPTIC_ROWS_PER_VELOCITY = 2
 
 
 @njit(cache=True)
@@ -1200,21 +1255,12 @@ def elliptic_contact_acceleration_into(D, a0, v, rows, depth, drift, weight, mu1
     ``m`` the rows) for ``rows D^-1`` and ``scratch`` from :func:`elliptic_scratch` for at least
     ``m / 3`` contacts and exactly ``nv`` velocities. ``a_out`` may be ``a0`` itself (it is
     written last). The same arithmetic, bit for bit; every scratch entry is written before it
-    is read."""
+    is read. With at most :data:`ELLIPTIC_ROWS_PER_VELOCITY` rows per velocity the Newton steps
+    are taken in the rows (:func:`_elliptic_newton_in_rows`), else in the velocities
+    (:func:`_elliptic_newton_in_velocities`): the same steps, to roundoff."""
     m, nv = rows.shape
-    mats, vecs, per_row, cones, per_contact_rows = scratch
-    L, M, H = mats[0], mats[1], mats[2]
-    unit, a, grad, step, at = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
-    sR, aref, ft = per_row[0, :m], per_row[1, :m], per_row[2, :m]
-    nc = m // 3
-    Hc, Ht = cones[0, :nc], cones[1, :nc]
-    Jc, HJ = per_contact_rows[0], per_contact_rows[1]
-    unit[:] = 0.0
-    spd_factor(D, nv, L)
-    for j in range(nv):
-        unit[j] = 1.0
-        spd_substitute(L, unit, nv, M[j])
-        unit[j] = 0.0
+    per_row = scratch[2]
+    sR, aref = per_row[0, :m], per_row[1, :m]
     W = W_buf[:m * nv].reshape((m, nv))
     np.dot(rows, D, W)
     d_max = SOFT_SOLIMP[1]
@@ -1230,6 +1276,158 @@ def elliptic_contact_acceleration_into(D, a0, v, rows, depth, drift, weight, mu1
                 jv += rows[r0 + e, col] * v[col]
             aref[r0 + e] = -bcoef * jv - drift[r0 + e]
         aref[r0] -= kcoef * d * depth[r0]
+    if m <= ELLIPTIC_ROWS_PER_VELOCITY * nv:
+        return _elliptic_newton_in_rows(W, rows, a0, aref, sR, mu1, f, a_out, scratch)
+    return _elliptic_newton_in_velocities(D, W, rows, a0, aref, sR, mu1, f, a_out, scratch)
+
+
+@njit(cache=True)
+def _elliptic_newton_in_rows(W, rows, a0, aref, sR, mu1, f, a_out, scratch):
+    """The Newton iteration of :func:`elliptic_contact_acceleration` in the contact rows: ``a =
+    a0 + D^-1 J^T lam`` (``W = J D^-1``), so that the cost is
+    ``lam A lam / 2 + sum |P(-R^(-1/2) (y - a_ref))|^2 / 2`` with ``y = J a0 + A lam``,
+    ``A = J D^-1 J^T``. The velocities' Newton step ``-(M + J^T S J)^-1 J^T (lam - f)``, ``S``
+    the contacts' curvature ``B^T B`` (``B`` each contact's :func:`cone_projection_factor`
+    over ``R^(1/2)``), is ``D^-1 J^T dlam`` with
+
+        dlam = (I + S A)^-1 r = r - B^T (I + B A B^T)^-1 B A r,   r = f - lam,
+
+    (the push-through identity): a symmetric positive definite system of the rows' size, so a
+    step costs ``O(m^3)`` for ``m`` rows and neither ``M`` nor the velocities' system is formed.
+    The line search, the tests and the start are :func:`_elliptic_newton_in_velocities`'; the
+    steps are the same to roundoff. ``scratch``: :func:`elliptic_scratch`'s; returns the Newton
+    iterations."""
+    m, nv = rows.shape
+    nc = m // 3
+    vecs, per_row, cones, row_mats, row_vecs = scratch[1], scratch[2], scratch[3], scratch[5], scratch[6]
+    ft = per_row[2, :m]
+    a, grad, da = vecs[1], vecs[2], vecs[3]
+    G, Gt = cones[0, :nc], cones[1, :nc]
+    A = row_mats[0, :m * m].reshape((m, m))
+    C = row_mats[1, :m * m].reshape((m, m))       # A B^T
+    K = row_mats[2, :m * m].reshape((m, m))       # I + B A B^T (lower triangle)
+    LK = row_mats[3, :m * m].reshape((m, m))
+    lam, y0, y, yt, dy, dlam, r, t, bt, x = (row_vecs[0, :m], row_vecs[1, :m], row_vecs[2, :m], row_vecs[3, :m],
+                                             row_vecs[4, :m], row_vecs[5, :m], row_vecs[6, :m], row_vecs[7, :m],
+                                             row_vecs[8, :m], row_vecs[9, :m])
+    np.dot(W, rows.T, A)
+    for j in range(m):
+        acc = 0.0
+        for col in range(nv):
+            acc += rows[j, col] * a0[col]
+        y0[j] = acc
+        lam[j] = f[j]                             # the last step's forces
+    for j in range(m):
+        acc = y0[j]
+        for k in range(m):
+            acc += A[j, k] * lam[k]
+        y[j] = acc
+    cost = _elliptic_row_cost(lam, y, y0, aref, sR, mu1, f, G)
+    for col in range(nv):
+        acc = a0[col]
+        for j in range(m):
+            acc += W[j, col] * lam[j]
+        a[col] = acc
+    iterations = 0
+    for it in range(1, 51):
+        size = 1e-300                             # the velocities' gradient J^T (lam - f) and its scale
+        for i in range(nv):
+            acc_m, acc_f = 0.0, 0.0
+            for j in range(m):
+                acc_m += rows[j, i] * lam[j]
+                acc_f += rows[j, i] * f[j]
+            grad[i] = acc_m - acc_f
+            size = max(size, abs(acc_m), abs(acc_f))
+        if max_abs(grad) <= 1e-10 * size:
+            break
+        iterations = it
+        for j in range(m):
+            r[j] = f[j] - lam[j]
+        for j in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += A[j, k] * r[k]
+            t[j] = acc
+        for c in range(nc):                       # C = A B^T, B t
+            o = 3 * c
+            for e in range(3):
+                g0, g1, g2 = G[c, e, 0] / sR[o], G[c, e, 1] / sR[o + 1], G[c, e, 2] / sR[o + 2]
+                for i in range(m):
+                    C[i, o + e] = A[i, o] * g0 + A[i, o + 1] * g1 + A[i, o + 2] * g2
+                bt[o + e] = t[o] * g0 + t[o + 1] * g1 + t[o + 2] * g2
+        for c in range(nc):                       # K = I + B C, its lower triangle
+            o = 3 * c
+            for e in range(3):
+                g0, g1, g2 = G[c, e, 0] / sR[o], G[c, e, 1] / sR[o + 1], G[c, e, 2] / sR[o + 2]
+                for j in range(o + e + 1):
+                    K[o + e, j] = g0 * C[o, j] + g1 * C[o + 1, j] + g2 * C[o + 2, j]
+                K[o + e, o + e] += 1.0
+        spd_factor(K, m, LK)
+        spd_substitute(LK, bt, m, x)
+        for c in range(nc):                       # dlam = r - B^T x
+            o = 3 * c
+            for k in range(3):
+                dlam[o + k] = r[o + k] - (G[c, 0, k] * x[o] + G[c, 1, k] * x[o + 1] + G[c, 2, k] * x[o + 2]) / sR[o + k]
+        descent = 0.0                             # the velocities' gradient . step = -(r . A dlam)
+        for j in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += A[j, k] * dlam[k]
+            dy[j] = acc
+            descent -= r[j] * acc
+        for col in range(nv):
+            acc = 0.0
+            for j in range(m):
+                acc += W[j, col] * dlam[j]
+            da[col] = acc
+        alpha = 1.0
+        while True:
+            for j in range(m):
+                t[j] = lam[j] + alpha * dlam[j]
+                yt[j] = y[j] + alpha * dy[j]
+            ct = _elliptic_row_cost(t, yt, y0, aref, sR, mu1, ft, Gt)
+            if ct <= cost + 1e-4 * alpha * descent or alpha < 1e-10:
+                break
+            alpha *= 0.5
+        moved = 0.0
+        for i in range(nv):
+            moved = max_abs_into(moved, alpha * da[i])
+            a[i] += alpha * da[i]
+        lam[:] = t
+        y[:] = yt
+        f[:m] = ft
+        G[:, :, :] = Gt
+        cost = ct
+        if moved <= 1e-14 * (1.0 + max_abs(a)):
+            break
+    for col in range(nv):                         # a_out may be a0: written last
+        acc = a0[col]
+        for j in range(m):
+            acc += W[j, col] * lam[j]
+        a[col] = acc
+    a_out[:] = a
+    return iterations
+
+
+@njit(cache=True)
+def _elliptic_newton_in_velocities(D, W, rows, a0, aref, sR, mu1, f, a_out, scratch):
+    """The Newton iteration of :func:`elliptic_contact_acceleration` in the velocities: ``D``
+    inverted once into the mass matrix ``M``, each step's system ``M + J^T S J`` (nv, nv).
+    ``W = J D^-1``; ``scratch``: :func:`elliptic_scratch`'s; returns the Newton iterations."""
+    m, nv = rows.shape
+    mats, vecs, per_row, cones, per_contact_rows = scratch[:5]
+    L, M, H = mats[0], mats[1], mats[2]
+    unit, a, grad, step, at = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
+    ft = per_row[2, :m]
+    nc = m // 3
+    Hc, Ht = cones[0, :nc], cones[1, :nc]
+    Jc, HJ = per_contact_rows[0], per_contact_rows[1]
+    unit[:] = 0.0
+    spd_factor(D, nv, L)
+    for j in range(nv):
+        unit[j] = 1.0
+        spd_substitute(L, unit, nv, M[j])
+        unit[j] = 0.0
     a[:] = a0
     for col in range(nv):
         for j in range(m):

@@ -285,6 +285,78 @@ def test_cone_projection_is_the_nearest_point_of_the_cone():
         np.testing.assert_allclose(H, num, atol=1e-6)
 
 
+def test_the_cone_projections_factor_gives_its_jacobian():
+    """``cone_projection_factor``'s ``G`` satisfies ``G^T G = H``, :func:`cone_projection`'s
+    Jacobian, inside the cone, in its polar cone and on its surface, at the same projection."""
+    rng = np.random.default_rng(11)
+    H, G = np.empty((3, 3)), np.empty((3, 3))
+    zones = set()
+    for _ in range(300):
+        p, slope = 2 * rng.normal(size=3), rng.uniform(0.1, 2.0)
+        g = K.cone_projection(*p, slope, H)
+        np.testing.assert_array_equal(K.cone_projection_factor(*p, slope, G), g)
+        np.testing.assert_allclose(G.T @ G, H, atol=1e-12)
+        zones.add(int(np.linalg.matrix_rank(H)))
+    assert zones == {0, 2, 3}                          # every zone was met
+
+
+def elliptic_problem(rng: np.random.Generator, nv: int, nc: int, warm: bool):
+    """A random contact problem of ``nc`` points on ``nv`` velocities, set up as
+    ``elliptic_contact_acceleration_into`` sets it up for its Newton solves."""
+    B = rng.normal(size=(nv, nv))
+    D = np.linalg.inv(B @ B.T + nv * np.eye(nv))
+    rows, v, a0 = rng.normal(size=(3 * nc, nv)), rng.normal(size=nv), 5 * rng.normal(size=nv)
+    depth, drift = -rng.uniform(1e-5, 2e-3, nc), rng.normal(size=3 * nc)
+    weight, mu1, mu2, tc = rng.uniform(0.2, 1.0, nc), 0.3, 0.5, 0.02
+    d_max = K.SOFT_SOLIMP[1]
+    sR, aref = np.empty(3 * nc), np.empty(3 * nc)
+    for c in range(nc):
+        d = K.soft_impedance(depth[c])
+        sn = np.sqrt((1 - d) / d * weight[c])
+        sR[3 * c:3 * c + 3] = sn, sn, sn * mu1 / mu2
+        aref[3 * c:3 * c + 3] = -2 / (d_max * tc) * (rows[3 * c:3 * c + 3] @ v) - drift[3 * c:3 * c + 3]
+        aref[3 * c] -= d / (d_max * tc * K.SOFT_DAMPRATIO) ** 2 * depth[c]
+    start = np.abs(rng.normal(size=3 * nc)) * warm
+    return D, np.ascontiguousarray(rows @ D), rows, a0, aref, sR, mu1, start
+
+
+def test_the_elliptic_newton_steps_in_the_rows_are_those_in_the_velocities():
+    """The elliptic cone's two Newton solves (in the contact rows, used up to
+    ``ELLIPTIC_ROWS_PER_VELOCITY`` rows per velocity, and in the velocities) take the same steps:
+    the same iterations on most problems and as many in all (near the end, roundoff can lead one
+    through a few more halvings of its line search at a kink of the cost), the same accelerations
+    and forces to well within the solve's tolerance; each reads no scratch entry it has not written (scratch full of NaN,
+    and left by a larger problem, gives the answer of fresh scratch bit for bit)."""
+    rng = np.random.default_rng(13)
+    same_iterations, worst, totals = 0, 0.0, np.zeros(2)
+    for trial in range(100):
+        nv, nc = int(rng.integers(6, 18)), int(rng.integers(1, 7))
+        D, W, rows, a0, aref, sR, mu1, start = elliptic_problem(rng, nv, nc, trial % 2 == 1)
+        answers = []
+        for solve in (K._elliptic_newton_in_rows, K._elliptic_newton_in_velocities):
+            per_path = []
+            for scratch in (K.elliptic_scratch(nc, nv), K.elliptic_scratch(nc + 3, nv)):
+                for s in scratch:
+                    s.fill(np.nan)
+                for _ in range(2):                     # the second call on the first call's leftovers
+                    f, a = start.copy(), a0.copy()     # in place, as the loop calls it
+                    args = (W, rows, a, aref, sR, mu1, f, a, scratch)
+                    it = solve(*args) if solve is K._elliptic_newton_in_rows else solve(D, *args)
+                    per_path.append((a, f, it))
+            for a, f, it in per_path[1:]:
+                assert np.all(np.isfinite(a)) and it == per_path[0][2]
+                np.testing.assert_array_equal(a, per_path[0][0])
+                np.testing.assert_array_equal(f, per_path[0][1])
+            answers.append(per_path[0])
+        (a_rows, f_rows, it_rows), (a_vel, f_vel, it_vel) = answers
+        same_iterations += it_rows == it_vel
+        totals += np.array([it_rows, it_vel])
+        worst = max(worst, np.abs(a_rows - a_vel).max() / np.abs(a_vel).max(),
+                    np.abs(f_rows - f_vel).max() / (np.abs(f_vel).max() + 1e-300))
+    assert same_iterations >= 70 and abs(totals[0] - totals[1]) <= 0.05 * totals[1], (same_iterations, totals)
+    assert worst < 1e-7
+
+
 def test_elliptic_forces_solve_the_dual_problem():
     """On random contact problems the elliptic solve's forces satisfy the optimality conditions
     of the problem its docstring states: ``f`` in the cone, ``y = (A + R) f - (a_ref - J a0)``
