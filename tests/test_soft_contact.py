@@ -684,6 +684,39 @@ def test_a_fit_from_shapes_starts_at_each_rounding_when_it_is_free_and_keeps_the
     assert started == [0.01]  # a frozen shape is kept: one fit from it
 
 
+def test_a_fit_from_shapes_leaves_out_a_start_whose_simulation_diverges():
+    """A start no simulation follows (the stand-in fit raises the simulator's divergence from the
+    middle shape) is left out, recorded and reported; the others' best is kept. Only when every
+    start diverges is that an error, naming the starts."""
+    from types import SimpleNamespace
+
+    from cobra_model.run_files import read_run
+    from integrators.simulator import SimulationDiverged
+    from sysid.identification.contact_choice import ROUNDING_STARTS_M, fit_from_shapes
+    from sysid.identification.objective import Objective, Weights
+
+    runs = [read_run(Path(__file__).resolve().parent.parent / "data" / "reference" / "run_02_0p50hz.csv")]
+
+    def fit_diverging_at(bad):
+        def fake_fit(objective):
+            r0 = objective.params.contact_rounding
+            if r0 in bad:
+                raise SimulationDiverged(f"t = 0.2 s: the head sank 3 cm (rounding {r0})")
+            return SimpleNamespace(cost=(r0 - 0.02) ** 2, seconds=1.0, params=objective.params)
+        return fake_fit
+
+    free = ModelParameters.nominal().with_frozen(free=["mu_c", "contact_rounding"])
+    said = []
+    shapes = fit_from_shapes(Objective(runs, free, Weights()), fit_diverging_at({ROUNDING_STARTS_M[1]}),
+                             progress=said.append)
+    assert shapes.best.params.contact_rounding in (ROUNDING_STARTS_M[0], ROUNDING_STARTS_M[2])
+    assert [s.diverged for s in shapes.starts] == [False, True, False]
+    assert shapes.starts[1].cost is None and shapes.starts[1].to_json()["diverged"] is True
+    assert any("diverged from contact_rounding 0.0225 m" in line for line in said)
+    with pytest.raises(SimulationDiverged, match="diverged from every start.*contact_rounding 0.045 m"):
+        fit_from_shapes(Objective(runs, free, Weights()), fit_diverging_at(set(ROUNDING_STARTS_M)))
+
+
 def test_a_soft_law_fit_starts_on_a_soft_and_the_stiffest_ground_and_screens_the_starts_on_the_first_seconds():
     """Under a soft law with the time constant free, the starts are every shape on the nominal
     (20 ms) and the stiffest (2 ms, the bound) ground; all six are fitted on the first 1.5 s and
