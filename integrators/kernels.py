@@ -774,6 +774,29 @@ def spd_substitute(L, b, k, x):
 
 
 @njit(cache=True, inline="always")
+def spd_inverse_into(A, L, X, out):
+    """``out = A^-1`` (n, n), both triangles, for a symmetric positive definite ``A`` (reading
+    its lower triangle): its factor ``A = L L^T`` (:func:`spd_factor`, into ``L``), ``X =
+    L^-1`` row by row (each row a sum of the rows above it: loops along a row, which the
+    compiler vectorises) and ``out = X^T X`` (BLAS). A column-by-column substitution is a chain
+    of dependent steps instead: 17 columns of 17 took 5 us, this about 1."""
+    n = A.shape[0]
+    spd_factor(A, n, L)
+    for i in range(n):
+        for c in range(n):
+            X[i, c] = 0.0
+        X[i, i] = 1.0
+        for j in range(i):
+            lij = L[i, j]
+            for c in range(j + 1):        # row j of L^-1 is zero right of j
+                X[i, c] -= lij * X[j, c]
+        inv = 1.0 / L[i, i]
+        for c in range(i + 1):
+            X[i, c] *= inv
+    np.dot(X.T, X, out)
+
+
+@njit(cache=True, inline="always")
 def max_abs_into(largest: float, x: float) -> float:
     """``max(largest, |x|)``, NaN once either is (as ``np.max`` propagates it)."""
     y = abs(x)
@@ -883,13 +906,28 @@ def nonnegative_qp_into(M, r, f, free, idx, sub, L, rs, zs, z):
 
 #: A soft contact solve with more rows than this many per velocity solves through the velocities
 #: (:func:`nonnegative_qp_through_velocities_into`): its free sets' systems then cost about
-#: ``k nv^2 + nv^3`` against ``k^3 / 3`` for the ``k`` rows' own (and ``A``, ``m^2 nv``, is not
-#: formed). Measured on COBRA's states (``docs/benchmarks.md``, "Simulation speed").
+#: ``nv^3 / 6`` each against ``k^3 / 6`` for the ``k`` rows' own, and ``A`` (``m^2 nv``) is not
+#: formed. On COBRA's gait states of 35-68 rows both cost the same (8 us); below, the rows'
+#: system is cheaper (3.2 against 5.3 us at 18-34 rows); with all 24 ends down (96 rows), the
+#: velocities' (``docs/benchmarks.md``, "Simulation speed").
 THROUGH_VELOCITIES_ROWS_PER_VELOCITY = 4
 
 
+@njit(cache=True, inline="always")
+def _add_row_to_system(rows, j, weight, r_j, S, b):
+    """``S += weight J_j^T J_j`` (its lower triangle) and ``b += weight r_j J_j^T``: row ``j``
+    of ``rows`` joining (``weight > 0``) or leaving (``< 0``) the velocities' system."""
+    nv = rows.shape[1]
+    for i in range(nv):
+        wi = weight * rows[j, i]
+        b[i] += wi * r_j
+        if wi != 0.0:
+            for c in range(i + 1):
+                S[i, c] += wi * rows[j, c]
+
+
 @njit(cache=True)
-def nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, f, free, z, scratch):
+def nonnegative_qp_through_velocities_into(rows, reg, Minv, r, f, free, z, scratch):
     """:func:`nonnegative_qp` for ``M = rows D^-1 rows^T + diag(reg)`` without forming ``M``:
     the same active-set method, each free set ``F``'s system solved through the velocities by
     Woodbury's identity, as MuJoCo's primal solvers work,
@@ -897,88 +935,88 @@ def nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, f, free, z, sc
         z_F = (r_F - J_F y) / reg_F,   (D + J_F^T diag(1 / reg_F) J_F) y = J_F^T (r_F / reg_F),
 
     (``J = rows``, ``D = Minv^-1`` the mass matrix), and a bound row's ``(M f - r)_j`` as
-    ``W_j . (J^T f) - r_j`` (``W = J D^-1``). The forces are the row system's to roundoff; a
-    solve costs ``O(k nv^2 + nv^3)`` for ``k`` free rows, against ``O(k^3)``: cheaper when the
-    rows outnumber the velocities severalfold.
+    ``J_j . D^-1 (J^T f) - r_j``. The velocities' system is formed once for the start's free
+    set and then updated by each row that joins or leaves it (:func:`_add_row_to_system`, ``nv^2``
+    each). The forces are the row system's to roundoff; a solve costs ``O(nv^3)`` whatever the
+    number of free rows, against ``O(k^3)``: cheaper when the rows outnumber the velocities.
 
     Args:
-        rows: ``J`` (m, nv); ``W``: ``J D^-1`` (m, nv); ``reg``: (m,) the rows' regulariser
-            ``R`` (> 0); ``Minv``: ``D^-1`` (nv, nv), both triangles filled.
+        rows: ``J`` (m, nv); ``reg``: (m,) the rows' regulariser ``R`` (> 0); ``Minv``: ``D^-1``
+            (nv, nv), both triangles filled.
         r, f: as :func:`nonnegative_qp` (``f`` the start on entry, the solution on return).
         free: (at least m,) bool; ``z``: (at least m,); ``scratch``: :func:`soft_scratch`'s
-            last entry (``D``, the system and its factor (nv, nv), two (m nv) buffers and three
-            (nv,) vectors), every entry written before it is read.
+            last entry (``D``, the system and its factor (nv, nv), an (m nv) buffer, three
+            (nv,) vectors and an (m,) bool), every entry written before it is read.
 
     Returns:
         the number of iterations.
     """
     m, nv = rows.shape
-    D, S, LS, G_buf, F_buf, b, y, u = scratch
-    spd_factor(Minv, nv, LS)          # D = (D^-1)^-1, column by column
-    for c in range(nv):
-        for i in range(nv):
-            b[i] = 0.0
-        b[c] = 1.0
-        spd_substitute(LS, b, nv, y)
-        for i in range(nv):
-            D[i, c] = y[i]
+    D, S, LS, H_buf, b, y, u, was = scratch
+    spd_inverse_into(Minv, LS, S, D)  # D = (D^-1)^-1; S is formed below
+    k = 0
     for j in range(m):
         free[j] = f[j] > 0.0
+        k += free[j]
+    H = H_buf[:k * nv].reshape((k, nv))       # diag(reg_F^(-1/2)) J_F, the start's free set
+    for i in range(nv):
+        b[i] = 0.0
+    a = 0
+    for j in range(m):
+        if free[j]:
+            s = 1.0 / np.sqrt(reg[j])
+            rs = r[j] * s * s
+            for i in range(nv):
+                H[a, i] = rows[j, i] * s
+                b[i] += rows[j, i] * rs
+            a += 1
+    np.dot(H.T, H, S)
+    for i in range(nv):
+        for c in range(i + 1):
+            S[i, c] += D[i, c]
     scale = 1e-12 * (max_abs(r) + 1e-300)
     for it in range(1, 3 * m + 10):
         # the best point with the bound rows at zero, approached as far as f stays >= 0
         while True:
-            k = 0
-            for j in range(m):
-                if free[j]:
-                    k += 1
+            spd_factor(S, nv, LS)
+            spd_substitute(LS, b, nv, y)
             for j in range(m):
                 z[j] = 0.0
-            if k > 0:
-                G = G_buf[:nv * k].reshape((nv, k))       # J_F^T diag(1 / reg_F)
-                JF = F_buf[:k * nv].reshape((k, nv))      # J_F
-                for i in range(nv):
-                    b[i] = 0.0
-                a = 0
-                for j in range(m):
-                    if free[j]:
-                        s = 1.0 / reg[j]
-                        for i in range(nv):
-                            JF[a, i] = rows[j, i]
-                            G[i, a] = rows[j, i] * s
-                            b[i] += rows[j, i] * (r[j] * s)
-                        a += 1
-                np.dot(G, JF, S)
-                for i in range(nv):
-                    for c in range(i + 1):
-                        S[i, c] += D[i, c]
-                spd_factor(S, nv, LS)
-                spd_substitute(LS, b, nv, y)
-                for j in range(m):
-                    if free[j]:
-                        jy = 0.0
-                        for i in range(nv):
-                            jy += rows[j, i] * y[i]
-                        z[j] = (r[j] - jy) / reg[j]
+                if free[j]:
+                    jy = 0.0
+                    for i in range(nv):
+                        jy += rows[j, i] * y[i]
+                    z[j] = (r[j] - jy) / reg[j]
+            for j in range(m):
+                was[j] = free[j]
             if _move_towards(f, z, free):
                 break
-        # the bound row that most wants a force joins: (M f - r)_j = W_j . J^T f - r_j (f_j = 0)
+            for j in range(m):
+                if was[j] and not free[j]:
+                    _add_row_to_system(rows, j, -1.0 / reg[j], r[j], S, b)
+        # the bound row that most wants a force joins: (M f - r)_j = J_j . D^-1 J^T f - r_j (f_j = 0)
         for i in range(nv):
             u[i] = 0.0
         for j in range(m):
             if f[j] != 0.0:
                 for i in range(nv):
                     u[i] += rows[j, i] * f[j]
+        for i in range(nv):
+            acc = 0.0
+            for c in range(nv):
+                acc += Minv[i, c] * u[c]
+            y[i] = acc
         for j in range(m):
             if not free[j]:
                 w = -r[j]
                 for i in range(nv):
-                    w += W[j, i] * u[i]
+                    w += rows[j, i] * y[i]
                 z[j] = w
         j_min = _joining_row(z, free, m, scale)
         if j_min < 0:
             return it
         free[j_min] = True
+        _add_row_to_system(rows, j_min, 1.0 / reg[j_min], r[j_min], S, b)
     return 3 * m + 10
 
 
@@ -1228,15 +1266,15 @@ def elliptic_scratch(n_contacts: int, nv: int):
 
     Returns the tuple ``(mats, vecs, per_row, cones, per_contact_rows, row_mats, row_vecs)``:
     ``mats`` (3, nv, nv) the Cholesky factor, the mass matrix and the Newton matrix; ``vecs``
-    (5, nv) a unit vector, the acceleration, the gradient, the Newton step and the line search's
-    trial acceleration; ``per_row`` (3, 3 n) the rows' ``sqrt(R)``, reference accelerations and
+    (4, nv) the acceleration, the gradient, the Newton step and the line search's trial
+    acceleration; ``per_row`` (3, 3 n) the rows' ``sqrt(R)``, reference accelerations and
     trial forces; ``cones`` (2, n, 3, 3) each contact's projection Jacobian (or its factor) at the
     current and the trial acceleration; ``per_contact_rows`` (2, 3, nv) one contact's scaled rows
     and their product with its Jacobian; ``row_mats`` (4, (3 n)^2) and ``row_vecs`` (10, 3 n) the
     Newton solve in the rows (:func:`_elliptic_newton_in_rows`): ``A``, ``A B^T``, the Newton
     system and its factor, and its vectors."""
     m = 3 * n_contacts
-    return (np.empty((3, nv, nv)), np.empty((5, nv)), np.empty((3, m)),
+    return (np.empty((3, nv, nv)), np.empty((4, nv)), np.empty((3, m)),
             np.empty((2, n_contacts, 3, 3)), np.empty((2, 3, nv)), np.empty((4, m * m)), np.empty((10, m)))
 
 
@@ -1301,7 +1339,7 @@ def _elliptic_newton_in_rows(W, rows, a0, aref, sR, mu1, f, a_out, scratch):
     nc = m // 3
     vecs, per_row, cones, row_mats, row_vecs = scratch[1], scratch[2], scratch[3], scratch[5], scratch[6]
     ft = per_row[2, :m]
-    a, grad, da = vecs[1], vecs[2], vecs[3]
+    a, grad, da = vecs[0], vecs[1], vecs[2]
     G, Gt = cones[0, :nc], cones[1, :nc]
     A = row_mats[0, :m * m].reshape((m, m))
     C = row_mats[1, :m * m].reshape((m, m))       # A B^T
@@ -1417,17 +1455,12 @@ def _elliptic_newton_in_velocities(D, W, rows, a0, aref, sR, mu1, f, a_out, scra
     m, nv = rows.shape
     mats, vecs, per_row, cones, per_contact_rows = scratch[:5]
     L, M, H = mats[0], mats[1], mats[2]
-    unit, a, grad, step, at = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
+    a, grad, step, at = vecs[0], vecs[1], vecs[2], vecs[3]
     ft = per_row[2, :m]
     nc = m // 3
     Hc, Ht = cones[0, :nc], cones[1, :nc]
     Jc, HJ = per_contact_rows[0], per_contact_rows[1]
-    unit[:] = 0.0
-    spd_factor(D, nv, L)
-    for j in range(nv):
-        unit[j] = 1.0
-        spd_substitute(L, unit, nv, M[j])
-        unit[j] = 0.0
+    spd_inverse_into(D, L, H, M)      # H is the Newton matrix below
     a[:] = a0
     for col in range(nv):
         for j in range(m):
@@ -1522,8 +1555,8 @@ def soft_scratch(n_features: int, nv: int):
     return (np.empty(m * nv), np.empty(m), np.empty(m), np.empty((3, nv)), np.empty(m), np.empty(n_features),
             np.empty(m * nv), np.empty(m * m), np.empty(m), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.int64),
             np.empty((m, m)), np.empty((m, m)), np.empty(m), np.empty(m), np.empty(m), np.empty(m),
-            (np.empty((nv, nv)), np.empty((nv, nv)), np.empty((nv, nv)), np.empty(m * nv), np.empty(m * nv),
-             np.empty(nv), np.empty(nv), np.empty(nv)))
+            (np.empty((nv, nv)), np.empty((nv, nv)), np.empty((nv, nv)), np.empty(m * nv), np.empty(nv),
+             np.empty(nv), np.empty(nv), np.empty(m, dtype=np.bool_)))
 
 
 @njit(cache=True, inline="always")
@@ -1599,7 +1632,7 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
     With more than :data:`THROUGH_VELOCITIES_ROWS_PER_VELOCITY` rows per velocity (a robot at
     rest on all its ends: COBRA's 24 ends give 96 rows for 17 velocities) the same method
     solves each free set through the velocities' system instead
-    (:func:`nonnegative_qp_through_velocities_into`) and ``A`` is never formed.
+    (:func:`nonnegative_qp_through_velocities_into`) and neither ``A`` nor ``J D^-1`` is formed.
 
     Args:
         v: velocity (nv,).
@@ -1628,8 +1661,6 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
         return 0
     mu1, tc = ground[G_MU_C], ground[G_TC]
     W_buf, A_buf, rhs_buf, free, idx, sub, L, rs, zs, z, reg_buf, through = scratch[6:]
-    W = W_buf[:m * nv].reshape((m, nv))
-    np.dot(rows, Minv, W)             # rows D^-1, D^-1 symmetric
     d_max = SOFT_SOLIMP[1]
     bcoef = 2.0 / (d_max * tc)
     kcoef = 1.0 / (d_max * d_max * tc * tc * SOFT_DAMPRATIO * SOFT_DAMPRATIO)
@@ -1646,19 +1677,32 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
                 ja += rows[j, col] * a[col]
             rhs[j] = -bcoef * jv - kcoef * d * depth[j] - drift[j] - ja
     if m > THROUGH_VELOCITIES_ROWS_PER_VELOCITY * nv:
-        iterations = nonnegative_qp_through_velocities_into(rows, W, reg, Minv, rhs, f, free, z, through)
+        iterations = nonnegative_qp_through_velocities_into(rows, reg, Minv, rhs, f, free, z, through)
+        u = through[6]                # J^T f
+        for col in range(nv):
+            acc = 0.0
+            for j in range(m):
+                acc += rows[j, col] * f[j]
+            u[col] = acc
+        for col in range(nv):
+            acc = 0.0
+            for i in range(nv):
+                acc += Minv[col, i] * u[i]
+            a[col] += acc
     else:
+        W = W_buf[:m * nv].reshape((m, nv))
+        np.dot(rows, Minv, W)         # rows D^-1, D^-1 symmetric
         A = A_buf[:m * m].reshape((m, m))
         np.dot(W, rows.T, A)
         for j in range(m):
             A[j, j] += reg[j]
         iterations = nonnegative_qp_into(A, rhs, f, free, idx, sub, L, rs, zs, z)
+        for col in range(nv):
+            acc = 0.0
+            for j in range(m):
+                acc += W[j, col] * f[j]
+            a[col] += acc
     _store_warm(X, f, 4, warm)
-    for col in range(nv):
-        acc = 0.0
-        for j in range(m):
-            acc += W[j, col] * f[j]
-        a[col] += acc
     return iterations
 
 

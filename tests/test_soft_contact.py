@@ -157,7 +157,8 @@ def test_the_solve_through_the_velocities_is_the_row_systems():
     """The pyramid's active-set method with each free set solved through the velocities
     (Woodbury's identity) against the same method on the formed row system, on random problems
     of 1-100 rows and 3-17 velocities: the same forces to roundoff, the same iterations, and
-    the complementarity conditions hold."""
+    the complementarity conditions hold (the velocities' system updated row by row as the free
+    set changes, over as many as a hundred rows joining and leaving)."""
     rng = np.random.default_rng(11)
     for trial in range(30):
         nv, m = int(rng.integers(3, 18)), int(rng.integers(1, 100))
@@ -170,7 +171,7 @@ def test_the_solve_through_the_velocities_is_the_row_systems():
         start = np.abs(rng.normal(size=m)) * (trial % 2)
         direct, through = start.copy(), start.copy()
         iterations = K.nonnegative_qp(A, r, direct)
-        assert K.nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, through, np.empty(m, dtype=np.bool_),
+        assert K.nonnegative_qp_through_velocities_into(rows, reg, Minv, r, through, np.empty(m, dtype=np.bool_),
                                                         np.empty(m), K.soft_scratch(m, nv)[-1]) == iterations
         np.testing.assert_allclose(through, direct, rtol=0, atol=1e-12 * np.abs(direct).max())
         w = A @ through - r
