@@ -132,8 +132,9 @@ def test_the_solvers_scratch_carries_nothing_from_one_step_to_the_next(cobra):
 def test_cholesky_solves_the_contact_solvers_systems():
     """The contact solvers' own Cholesky against LAPACK on positive definite systems of their
     sizes (a few rows to a 17-coordinate mass matrix and beyond), conditioned as the pyramid's
-    ``A + R`` is (condition numbers up to about 1e8); only the lower triangle is read, and a
-    matrix that is not positive definite gives NaN, which a rollout reports as a divergence."""
+    ``A + R`` is (condition numbers up to about 1e8), and the inverse made from the factor (the
+    mass matrix from its inverse); only the lower triangle is read, and a matrix that is not
+    positive definite gives NaN, which a rollout reports as a divergence."""
     rng = np.random.default_rng(5)
     for m in (1, 2, 4, 7, 12, 17, 28, 50):
         B = rng.normal(size=(m, m))
@@ -147,6 +148,11 @@ def test_cholesky_solves_the_contact_solvers_systems():
         cond = np.linalg.cond(M)
         assert np.linalg.norm(x - expected) <= 1e-15 * cond * np.linalg.norm(expected) * 10 * m
         np.testing.assert_allclose(np.tril(L) @ np.tril(L).T, M, atol=1e-12 * np.abs(M).max())
+        inverse, X = np.full((m, m), np.nan), np.full((m, m), np.nan)   # the inverse, from the lower triangle
+        K.spd_inverse_into(A, L, X, inverse)
+        expected = np.linalg.inv(M)
+        assert np.abs(inverse - expected).max() <= 1e-15 * cond * np.abs(expected).max() * 10 * m
+        np.testing.assert_allclose(inverse, inverse.T, rtol=0, atol=1e-14 * np.abs(inverse).max())
     L, x = np.empty((2, 2)), np.empty(2)
     K.spd_factor(np.array([[1.0, 2.0], [2.0, 1.0]]), 2, L)             # eigenvalues 3 and -1
     K.spd_substitute(L, np.ones(2), 2, x)
