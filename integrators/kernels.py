@@ -1115,38 +1115,13 @@ def soft_contact_rows_into(nv, floating, parents, vidx, f_body, X, kin_R, kin_v,
 
 
 @njit(cache=True, inline="always")
-def cone_projection(p0, p1, p2, slope, H):
+def cone_projection(p0, p1, p2, slope, G):
     """Euclidean projection ``g`` of ``p`` onto the circular cone ``|(g1, g2)| <= slope g0``, and
-    its Jacobian ``dg/dp`` in ``H`` (3, 3): ``p`` itself inside the cone, 0 inside its polar
-    cone, else the nearest point of the cone's surface."""
-    t = np.sqrt(p1 * p1 + p2 * p2)
-    if t <= slope * p0:
-        for i in range(3):
-            for j in range(3):
-                H[i, j] = 1.0 if i == j else 0.0
-        return p0, p1, p2
-    if slope * t <= -p0:
-        H[:, :] = 0.0
-        return 0.0, 0.0, 0.0
-    k = 1.0 / (1.0 + slope * slope)
-    g0 = (p0 + slope * t) * k
-    e1, e2 = p1 / t, p2 / t
-    s = slope * g0 / t
-    H[0, 0] = k
-    H[0, 1] = H[1, 0] = slope * e1 * k
-    H[0, 2] = H[2, 0] = slope * e2 * k
-    H[1, 1] = slope * slope * e1 * e1 * k + s * (1.0 - e1 * e1)
-    H[2, 2] = slope * slope * e2 * e2 * k + s * (1.0 - e2 * e2)
-    H[1, 2] = H[2, 1] = slope * slope * e1 * e2 * k - s * e1 * e2
-    return g0, slope * g0 * e1, slope * g0 * e2
-
-
-@njit(cache=True, inline="always")
-def cone_projection_factor(p0, p1, p2, slope, G):
-    """:func:`cone_projection` of ``p``, with its Jacobian ``H`` as ``G^T G`` in ``G`` (3, 3):
-    the identity inside the cone, 0 inside its polar cone, and on the cone's surface the rows
-    ``sqrt(k) (1, slope e1, slope e2)`` and ``sqrt(s) (0, -e2, e1)`` over a zero row (``H`` has
-    rank 2 there: ``k u u^T + s w w^T``, with :func:`cone_projection`'s ``k``, ``s`` and ``e``)."""
+    its Jacobian ``dg/dp = G^T G`` as its factor ``G`` (3, 3): ``p`` itself and the identity
+    inside the cone, 0 inside its polar cone, else the nearest point of the cone's surface, where
+    the Jacobian ``k u u^T + s w w^T`` (``k = 1 / (1 + slope^2)``, ``u = (1, slope e1, slope e2)``,
+    ``w = (0, -e2, e1)``, ``e`` the direction of ``(p1, p2)``, ``s = slope g0 / |(p1, p2)|``) has
+    rank 2: ``G``'s rows are ``sqrt(k) u``, ``sqrt(s) w`` and zeros."""
     t = np.sqrt(p1 * p1 + p2 * p2)
     if t <= slope * p0:
         for i in range(3):
@@ -1171,14 +1146,14 @@ def _elliptic_row_cost(lam, y, y0, aref, sR, slope, f, G):
     """The primal cost of :func:`elliptic_contact_acceleration` at ``a = a0 + D^-1 J^T lam``,
     given ``y = J a`` and ``y0 = J a0``: ``lam (y - y0) / 2`` (which is ``(a - a0) M (a - a0) / 2``)
     plus the contacts' terms; the contact forces there in ``f`` and each contact's projection
-    factor (:func:`cone_projection_factor`) in ``G``."""
+    factor (:func:`cone_projection`) in ``G``."""
     m = y.shape[0]
     cost = 0.0
     for j in range(m):
         cost += 0.5 * lam[j] * (y[j] - y0[j])
     for c in range(m // 3):
         r = 3 * c
-        g0, g1, g2 = cone_projection_factor(-(y[r] - aref[r]) / sR[r], -(y[r + 1] - aref[r + 1]) / sR[r + 1],
+        g0, g1, g2 = cone_projection(-(y[r] - aref[r]) / sR[r], -(y[r + 1] - aref[r + 1]) / sR[r + 1],
                                             -(y[r + 2] - aref[r + 2]) / sR[r + 2], slope, G[c])
         f[r], f[r + 1], f[r + 2] = g0 / sR[r], g1 / sR[r + 1], g2 / sR[r + 2]
         cost += 0.5 * (g0 * g0 + g1 * g1 + g2 * g2)
@@ -1186,9 +1161,10 @@ def _elliptic_row_cost(lam, y, y0, aref, sR, slope, f, G):
 
 
 @njit(cache=True, inline="always")
-def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Hc):
+def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Gc):
     """The primal cost of :func:`elliptic_contact_acceleration` at acceleration ``a``; the
-    contact forces there in ``f`` and each contact's projection Jacobian in ``Hc``."""
+    contact forces there in ``f`` and each contact's projection factor (:func:`cone_projection`)
+    in ``Gc``."""
     m, nv = rows.shape
     cost = 0.0
     for i in range(nv):
@@ -1210,7 +1186,7 @@ def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Hc):
                 p1 = -w / sR[r]
             else:
                 p2 = -w / sR[r]
-        g0, g1, g2 = cone_projection(p0, p1, p2, slope, Hc[c])
+        g0, g1, g2 = cone_projection(p0, p1, p2, slope, Gc[c])
         f[3 * c], f[3 * c + 1], f[3 * c + 2] = g0 / sR[3 * c], g1 / sR[3 * c + 1], g2 / sR[3 * c + 2]
         cost += 0.5 * (g0 * g0 + g1 * g1 + g2 * g2)
     return cost
@@ -1264,18 +1240,18 @@ def elliptic_scratch(n_contacts: int, nv: int):
     touching points and ``nv`` velocities: a rollout's loop makes them once, so that its steps
     allocate none of them (each step allocated 16).
 
-    Returns the tuple ``(mats, vecs, per_row, cones, per_contact_rows, row_mats, row_vecs)``:
+    Returns the tuple ``(mats, vecs, per_row, cones, row_mats, row_vecs)``:
     ``mats`` (3, nv, nv) the Cholesky factor, the mass matrix and the Newton matrix; ``vecs``
     (4, nv) the acceleration, the gradient, the Newton step and the line search's trial
     acceleration; ``per_row`` (3, 3 n) the rows' ``sqrt(R)``, reference accelerations and
-    trial forces; ``cones`` (2, n, 3, 3) each contact's projection Jacobian (or its factor) at the
-    current and the trial acceleration; ``per_contact_rows`` (2, 3, nv) one contact's scaled rows
-    and their product with its Jacobian; ``row_mats`` (4, (3 n)^2) and ``row_vecs`` (10, 3 n) the
-    Newton solve in the rows (:func:`_elliptic_newton_in_rows`): ``A``, ``A B^T``, the Newton
-    system and its factor, and its vectors."""
+    trial forces; ``cones`` (2, n, 3, 3) each contact's projection factor (:func:`cone_projection`)
+    at the current and the trial acceleration; ``row_mats`` (4, max(9 n^2, 3 n nv)) and
+    ``row_vecs`` (10, 3 n) the Newton solve in the rows (:func:`_elliptic_newton_in_rows`):
+    ``A``, ``A B^T``, the Newton system and its factor, and its vectors (the solve in the
+    velocities keeps its scaled rows in the second matrix)."""
     m = 3 * n_contacts
     return (np.empty((3, nv, nv)), np.empty((4, nv)), np.empty((3, m)),
-            np.empty((2, n_contacts, 3, 3)), np.empty((2, 3, nv)), np.empty((4, m * m)), np.empty((10, m)))
+            np.empty((2, n_contacts, 3, 3)), np.empty((4, max(m * m, m * nv))), np.empty((10, m)))
 
 
 #: An elliptic-cone solve with at most this many rows per velocity takes its Newton steps in the
@@ -1325,7 +1301,7 @@ def _elliptic_newton_in_rows(W, rows, a0, aref, sR, mu1, f, a_out, scratch):
     a0 + D^-1 J^T lam`` (``W = J D^-1``), so that the cost is
     ``lam A lam / 2 + sum |P(-R^(-1/2) (y - a_ref))|^2 / 2`` with ``y = J a0 + A lam``,
     ``A = J D^-1 J^T``. The velocities' Newton step ``-(M + J^T S J)^-1 J^T (lam - f)``, ``S``
-    the contacts' curvature ``B^T B`` (``B`` each contact's :func:`cone_projection_factor`
+    the contacts' curvature ``B^T B`` (``B`` each contact's :func:`cone_projection` factor
     over ``R^(1/2)``), is ``D^-1 J^T dlam`` with
 
         dlam = (I + S A)^-1 r = r - B^T (I + B A B^T)^-1 B A r,   r = f - lam,
@@ -1337,7 +1313,7 @@ def _elliptic_newton_in_rows(W, rows, a0, aref, sR, mu1, f, a_out, scratch):
     iterations."""
     m, nv = rows.shape
     nc = m // 3
-    vecs, per_row, cones, row_mats, row_vecs = scratch[1], scratch[2], scratch[3], scratch[5], scratch[6]
+    vecs, per_row, cones, row_mats, row_vecs = scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
     ft = per_row[2, :m]
     a, grad, da = vecs[0], vecs[1], vecs[2]
     G, Gt = cones[0, :nc], cones[1, :nc]
@@ -1450,22 +1426,25 @@ def _elliptic_newton_in_rows(W, rows, a0, aref, sR, mu1, f, a_out, scratch):
 @njit(cache=True)
 def _elliptic_newton_in_velocities(D, W, rows, a0, aref, sR, mu1, f, a_out, scratch):
     """The Newton iteration of :func:`elliptic_contact_acceleration` in the velocities: ``D``
-    inverted once into the mass matrix ``M``, each step's system ``M + J^T S J`` (nv, nv).
-    ``W = J D^-1``; ``scratch``: :func:`elliptic_scratch`'s; returns the Newton iterations."""
+    inverted once into the mass matrix ``M``, each step's system ``M + V^T V`` (nv, nv) with
+    ``V`` the rows scaled by ``R^(-1/2)`` and turned by each contact's projection factor
+    (:func:`cone_projection`; one BLAS product). ``W = J D^-1``; ``scratch``:
+    :func:`elliptic_scratch`'s (``V`` in the rows' solve's second matrix, unused here); returns
+    the Newton iterations."""
     m, nv = rows.shape
-    mats, vecs, per_row, cones, per_contact_rows = scratch[:5]
+    mats, vecs, per_row, cones, row_mats = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4]
     L, M, H = mats[0], mats[1], mats[2]
     a, grad, step, at = vecs[0], vecs[1], vecs[2], vecs[3]
     ft = per_row[2, :m]
     nc = m // 3
-    Hc, Ht = cones[0, :nc], cones[1, :nc]
-    Jc, HJ = per_contact_rows[0], per_contact_rows[1]
+    Gc, Gt = cones[0, :nc], cones[1, :nc]
+    V = row_mats[1, :m * nv].reshape((m, nv))
     spd_inverse_into(D, L, H, M)      # H is the Newton matrix below
     a[:] = a0
     for col in range(nv):
         for j in range(m):
             a[col] += W[j, col] * f[j]
-    cost = _elliptic_cost(rows, aref, sR, mu1, a, a0, M, f, Hc)
+    cost = _elliptic_cost(rows, aref, sR, mu1, a, a0, M, f, Gc)
     iterations = 0
     for it in range(1, 51):
         size = 1e-300
@@ -1481,25 +1460,16 @@ def _elliptic_newton_in_velocities(D, W, rows, a0, aref, sR, mu1, f, a_out, scra
         if max_abs(grad) <= 1e-10 * size:
             break
         iterations = it
-        H[:, :] = M
-        for c in range(nc):
-            if Hc[c, 0, 0] == 0.0 and Hc[c, 1, 1] == 0.0:
-                continue                      # a contact separating (polar zone): no curvature
+        for c in range(nc):                   # V = G R^(-1/2) J, contact by contact
+            o = 3 * c
             for e in range(3):
+                g0, g1, g2 = Gc[c, e, 0] / sR[o], Gc[c, e, 1] / sR[o + 1], Gc[c, e, 2] / sR[o + 2]
                 for col in range(nv):
-                    Jc[e, col] = rows[3 * c + e, col] / sR[3 * c + e]
-            for e in range(3):
-                for col in range(nv):
-                    HJ[e, col] = Hc[c, e, 0] * Jc[0, col] + Hc[c, e, 1] * Jc[1, col] + Hc[c, e, 2] * Jc[2, col]
-            for i in range(nv):
-                j0, j1, j2 = Jc[0, i], Jc[1, i], Jc[2, i]
-                if j0 == 0.0 and j1 == 0.0 and j2 == 0.0:
-                    continue
-                for j in range(i, nv):
-                    H[i, j] += j0 * HJ[0, j] + j1 * HJ[1, j] + j2 * HJ[2, j]
+                    V[o + e, col] = g0 * rows[o, col] + g1 * rows[o + 1, col] + g2 * rows[o + 2, col]
+        np.dot(V.T, V, H)
         for i in range(nv):
-            for j in range(i):
-                H[i, j] = H[j, i]
+            for j in range(i + 1):
+                H[i, j] += M[i, j]
         spd_factor(H, nv, L)          # H = M + J^T P' J, positive definite
         spd_substitute(L, grad, nv, step)
         for i in range(nv):
@@ -1511,7 +1481,7 @@ def _elliptic_newton_in_velocities(D, W, rows, a0, aref, sR, mu1, f, a_out, scra
         while True:
             for i in range(nv):
                 at[i] = a[i] + alpha * step[i]
-            ct = _elliptic_cost(rows, aref, sR, mu1, at, a0, M, ft, Ht)
+            ct = _elliptic_cost(rows, aref, sR, mu1, at, a0, M, ft, Gt)
             if ct <= cost + 1e-4 * alpha * slope or alpha < 1e-10:
                 break
             alpha *= 0.5
@@ -1520,7 +1490,7 @@ def _elliptic_newton_in_velocities(D, W, rows, a0, aref, sR, mu1, f, a_out, scra
             moved = max_abs_into(moved, at[i] - a[i])
         a[:] = at
         f[:] = ft
-        Hc[:, :, :] = Ht
+        Gc[:, :, :] = Gt
         cost = ct
         if moved <= 1e-14 * (1.0 + max_abs(a)):
             break
