@@ -56,6 +56,12 @@ def _speed(doc: dict) -> list[tuple[str, str, str]]:
     if soft:
         out.append(("simulator step under the soft-constraint contact law (MuJoCo's) against MuJoCo's",
                     f"{soft[0]['ratio_to_mujoco']:.3f}x ({soft[0]['us_per_step']:.1f} us)", "<= 0.5x"))
+    elliptic = [r for p, r in rows.items() if p.endswith("soft_elliptic contact law") and "ratio_to_mujoco_elliptic" in r]
+    if elliptic:  # the same contact problem: MuJoCo's elliptic cone
+        out.append(("simulator step under the soft-constraint law on the elliptic cone against MuJoCo's on its "
+                    "elliptic cone",
+                    f"{elliptic[0]['ratio_to_mujoco_elliptic']:.3f}x ({elliptic[0]['us_per_step']:.1f} us; "
+                    f"{elliptic[0]['ratio_to_mujoco']:.3f}x MuJoCo's step on its default pyramid)", "<= 0.5x"))
     if batched:
         # the target is in microseconds, which move with the machine: MuJoCo's step of the same run beside it
         out.append(("batched rollout, 256 environments, 2 threads",

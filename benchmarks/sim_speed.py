@@ -22,7 +22,10 @@ linearised from the same Dynamixel loop, reading a precomputed command table. Ou
   the default);
 - the batched rollout of the objective (``BatchSimulator``), per environment-step;
 - the momentum-form step (``SimSettings(scheme="momentum")``, bounded energy error), on the
-  core's path, for what it costs (no target: it is not the fits' step).
+  core's path, for what it costs (no target: it is not the fits' step);
+- each soft-constraint law with the robot lying still on all its 24 ends (zero commands: the
+  contact solve's largest problem, 96 rows on the pyramid), against MuJoCo lying still on the
+  same cone, for what it costs (no target: the gait is the benchmark's case).
 
 Writes ``benchmarks/results/sim_speed.{json,md}``.
 Run: ``.venv/bin/python benchmarks/sim_speed.py``.
@@ -101,6 +104,10 @@ def main() -> None:
     implicit = Simulator(model, ModelParameters.nominal().with_friction_step("implicit"))
     st = sim.rest_state(gait.q_ref(0.0))
     reference = simulate_gait(gait, DURATION, model=model)
+    still = np.zeros_like(table)
+    lying = [(f"{law} contact law, lying still on all its ends (zero commands)", cone,
+              lambda s=s: s.rollout(s.rest_state(still[0]), still, DURATION))
+             for (law, s), cone in zip(soft.items(), ("pyramidal", "elliptic"))]
     paths = [
         ("core: Simulator.rollout, command table, record every 10th step",
          lambda: sim.rollout(st, table, DURATION, record_every=10), 0.3),
@@ -117,7 +124,9 @@ def main() -> None:
     ]
     runs = {"mujoco": mujoco_run(model, table), "mujoco_self": mujoco_run(model, table, self_collision=True),
             "mujoco_elliptic": mujoco_run(model, table, cone="elliptic"),
-            **{name: run for name, run, _ in paths}}
+            **{name: run for name, run, _ in paths},
+            **{f"mujoco_still_{cone}": mujoco_run(model, still, cone=cone) for _, cone, _ in lying},
+            **{name: run for name, _, run in lying}}
     best = interleaved_best(runs)
     mj, mj_self, mj_elliptic = best["mujoco"], best["mujoco_self"], best["mujoco_elliptic"]
     rows = [{"path": name, "us_per_step": 1e6 * best[name], "ratio_to_mujoco": best[name] / mj, "target_ratio": target}
@@ -125,6 +134,9 @@ def main() -> None:
     for r in rows:
         if "soft_elliptic" in r["path"]:  # the same contact problem in MuJoCo: its elliptic cone
             r["ratio_to_mujoco_elliptic"] = 1e-6 * r["us_per_step"] / mj_elliptic
+    still_rows = [{"path": name, "us_per_step": 1e6 * best[name],
+                   "mujoco_still_us_per_step": 1e6 * best[f"mujoco_still_{cone}"], "mujoco_cone": cone,
+                   "ratio_to_mujoco_still": best[name] / best[f"mujoco_still_{cone}"]} for name, cone, _ in lying]
     batch = [{"environments": n, "us_per_env_step": 1e6 * time_batch(model, table, n)} for n in (16, 64, 256)]
     lines = [f"10 s of 0.5 Hz sidewinding at dt = {DT * 1e3:g} ms, best of {REPEATS} rounds (each path once per "
              "round, in turn, MuJoCo's among them); MuJoCo: same URDF, "
@@ -140,11 +152,15 @@ def main() -> None:
               f"{mj_self / mj:.2f} | |",
               f"| MuJoCo mj_step on the elliptic friction cone (ground contacts only) | {1e6 * mj_elliptic:.1f} | "
               f"{mj_elliptic / mj:.2f} | |", "",
-              "| batched rollout (BatchSimulator, 2 threads) | us / env-step | target |", "|---|---:|---:|"]
+              "| lying still on all 24 ends (zero commands) | us / step | MuJoCo lying still, same cone | ratio |",
+              "|---|---:|---:|---:|"]
+    lines += [f"| {r['path']} | {r['us_per_step']:.1f} | {r['mujoco_still_us_per_step']:.1f} ({r['mujoco_cone']}) | "
+              f"{r['ratio_to_mujoco_still']:.3f} |" for r in still_rows]
+    lines += ["", "| batched rollout (BatchSimulator, 2 threads) | us / env-step | target |", "|---|---:|---:|"]
     lines += [f"| {b['environments']} environments | {b['us_per_env_step']:.2f} | "
               f"{'<= 2' if b['environments'] == 256 else ''} |" for b in batch]
     text = "\n".join(lines)
-    write_results("sim_speed", rows + batch, {"duration_s": DURATION, "dt_s": DT, "repeats": REPEATS,
+    write_results("sim_speed", rows + still_rows + batch, {"duration_s": DURATION, "dt_s": DT, "repeats": REPEATS,
                                               "mujoco_us_per_step": 1e6 * mj,
                                               "mujoco_self_collision_us_per_step": 1e6 * mj_self,
                                               "mujoco_elliptic_us_per_step": 1e6 * mj_elliptic}, text)

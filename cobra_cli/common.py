@@ -138,7 +138,8 @@ def start_lines(starts: Sequence[StartFit], fit: str = "") -> list[str]:
         return []
     return ([f"{fit}training cost from each start (screened on the first seconds, then the whole runs):"]
             + [f"  {one.describe():55s} " + (f"screen {one.screen_cost:.4g}  " if one.screen_cost is not None else "")
-               + (f"whole runs {one.cost:.4g}" if one.cost is not None else "(not kept)") for one in starts])
+               + (f"whole runs {one.cost:.4g}" if one.cost is not None
+                  else "(diverged: left out)" if one.diverged else "(not kept)") for one in starts])
 
 
 def add_contact_option(p: argparse.ArgumentParser, what: str, choose: str = "") -> None:

@@ -774,6 +774,29 @@ def spd_substitute(L, b, k, x):
 
 
 @njit(cache=True, inline="always")
+def spd_inverse_into(A, L, X, out):
+    """``out = A^-1`` (n, n), both triangles, for a symmetric positive definite ``A`` (reading
+    its lower triangle): its factor ``A = L L^T`` (:func:`spd_factor`, into ``L``), ``X =
+    L^-1`` row by row (each row a sum of the rows above it: loops along a row, which the
+    compiler vectorises) and ``out = X^T X`` (BLAS). A column-by-column substitution is a chain
+    of dependent steps instead: 17 columns of 17 took 5 us, this about 1."""
+    n = A.shape[0]
+    spd_factor(A, n, L)
+    for i in range(n):
+        for c in range(n):
+            X[i, c] = 0.0
+        X[i, i] = 1.0
+        for j in range(i):
+            lij = L[i, j]
+            for c in range(j + 1):        # row j of L^-1 is zero right of j
+                X[i, c] -= lij * X[j, c]
+        inv = 1.0 / L[i, i]
+        for c in range(i + 1):
+            X[i, c] *= inv
+    np.dot(X.T, X, out)
+
+
+@njit(cache=True, inline="always")
 def max_abs_into(largest: float, x: float) -> float:
     """``max(largest, |x|)``, NaN once either is (as ``np.max`` propagates it)."""
     y = abs(x)
@@ -883,13 +906,28 @@ def nonnegative_qp_into(M, r, f, free, idx, sub, L, rs, zs, z):
 
 #: A soft contact solve with more rows than this many per velocity solves through the velocities
 #: (:func:`nonnegative_qp_through_velocities_into`): its free sets' systems then cost about
-#: ``k nv^2 + nv^3`` against ``k^3 / 3`` for the ``k`` rows' own (and ``A``, ``m^2 nv``, is not
-#: formed). Measured on COBRA's states (``docs/benchmarks.md``, "Simulation speed").
+#: ``nv^3 / 6`` each against ``k^3 / 6`` for the ``k`` rows' own, and ``A`` (``m^2 nv``) is not
+#: formed. On COBRA's gait states of 35-68 rows both cost the same (8 us); below, the rows'
+#: system is cheaper (3.2 against 5.3 us at 18-34 rows); with all 24 ends down (96 rows), the
+#: velocities' (``docs/benchmarks.md``, "Simulation speed").
 THROUGH_VELOCITIES_ROWS_PER_VELOCITY = 4
 
 
+@njit(cache=True, inline="always")
+def _add_row_to_system(rows, j, weight, r_j, S, b):
+    """``S += weight J_j^T J_j`` (its lower triangle) and ``b += weight r_j J_j^T``: row ``j``
+    of ``rows`` joining (``weight > 0``) or leaving (``< 0``) the velocities' system."""
+    nv = rows.shape[1]
+    for i in range(nv):
+        wi = weight * rows[j, i]
+        b[i] += wi * r_j
+        if wi != 0.0:
+            for c in range(i + 1):
+                S[i, c] += wi * rows[j, c]
+
+
 @njit(cache=True)
-def nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, f, free, z, scratch):
+def nonnegative_qp_through_velocities_into(rows, reg, Minv, r, f, free, z, scratch):
     """:func:`nonnegative_qp` for ``M = rows D^-1 rows^T + diag(reg)`` without forming ``M``:
     the same active-set method, each free set ``F``'s system solved through the velocities by
     Woodbury's identity, as MuJoCo's primal solvers work,
@@ -897,88 +935,88 @@ def nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, f, free, z, sc
         z_F = (r_F - J_F y) / reg_F,   (D + J_F^T diag(1 / reg_F) J_F) y = J_F^T (r_F / reg_F),
 
     (``J = rows``, ``D = Minv^-1`` the mass matrix), and a bound row's ``(M f - r)_j`` as
-    ``W_j . (J^T f) - r_j`` (``W = J D^-1``). The forces are the row system's to roundoff; a
-    solve costs ``O(k nv^2 + nv^3)`` for ``k`` free rows, against ``O(k^3)``: cheaper when the
-    rows outnumber the velocities severalfold.
+    ``J_j . D^-1 (J^T f) - r_j``. The velocities' system is formed once for the start's free
+    set and then updated by each row that joins or leaves it (:func:`_add_row_to_system`, ``nv^2``
+    each). The forces are the row system's to roundoff; a solve costs ``O(nv^3)`` whatever the
+    number of free rows, against ``O(k^3)``: cheaper when the rows outnumber the velocities.
 
     Args:
-        rows: ``J`` (m, nv); ``W``: ``J D^-1`` (m, nv); ``reg``: (m,) the rows' regulariser
-            ``R`` (> 0); ``Minv``: ``D^-1`` (nv, nv), both triangles filled.
+        rows: ``J`` (m, nv); ``reg``: (m,) the rows' regulariser ``R`` (> 0); ``Minv``: ``D^-1``
+            (nv, nv), both triangles filled.
         r, f: as :func:`nonnegative_qp` (``f`` the start on entry, the solution on return).
         free: (at least m,) bool; ``z``: (at least m,); ``scratch``: :func:`soft_scratch`'s
-            last entry (``D``, the system and its factor (nv, nv), two (m nv) buffers and three
-            (nv,) vectors), every entry written before it is read.
+            last entry (``D``, the system and its factor (nv, nv), an (m nv) buffer, three
+            (nv,) vectors and an (m,) bool), every entry written before it is read.
 
     Returns:
         the number of iterations.
     """
     m, nv = rows.shape
-    D, S, LS, G_buf, F_buf, b, y, u = scratch
-    spd_factor(Minv, nv, LS)          # D = (D^-1)^-1, column by column
-    for c in range(nv):
-        for i in range(nv):
-            b[i] = 0.0
-        b[c] = 1.0
-        spd_substitute(LS, b, nv, y)
-        for i in range(nv):
-            D[i, c] = y[i]
+    D, S, LS, H_buf, b, y, u, was = scratch
+    spd_inverse_into(Minv, LS, S, D)  # D = (D^-1)^-1; S is formed below
+    k = 0
     for j in range(m):
         free[j] = f[j] > 0.0
+        k += free[j]
+    H = H_buf[:k * nv].reshape((k, nv))       # diag(reg_F^(-1/2)) J_F, the start's free set
+    for i in range(nv):
+        b[i] = 0.0
+    a = 0
+    for j in range(m):
+        if free[j]:
+            s = 1.0 / np.sqrt(reg[j])
+            rs = r[j] * s * s
+            for i in range(nv):
+                H[a, i] = rows[j, i] * s
+                b[i] += rows[j, i] * rs
+            a += 1
+    np.dot(H.T, H, S)
+    for i in range(nv):
+        for c in range(i + 1):
+            S[i, c] += D[i, c]
     scale = 1e-12 * (max_abs(r) + 1e-300)
     for it in range(1, 3 * m + 10):
         # the best point with the bound rows at zero, approached as far as f stays >= 0
         while True:
-            k = 0
-            for j in range(m):
-                if free[j]:
-                    k += 1
+            spd_factor(S, nv, LS)
+            spd_substitute(LS, b, nv, y)
             for j in range(m):
                 z[j] = 0.0
-            if k > 0:
-                G = G_buf[:nv * k].reshape((nv, k))       # J_F^T diag(1 / reg_F)
-                JF = F_buf[:k * nv].reshape((k, nv))      # J_F
-                for i in range(nv):
-                    b[i] = 0.0
-                a = 0
-                for j in range(m):
-                    if free[j]:
-                        s = 1.0 / reg[j]
-                        for i in range(nv):
-                            JF[a, i] = rows[j, i]
-                            G[i, a] = rows[j, i] * s
-                            b[i] += rows[j, i] * (r[j] * s)
-                        a += 1
-                np.dot(G, JF, S)
-                for i in range(nv):
-                    for c in range(i + 1):
-                        S[i, c] += D[i, c]
-                spd_factor(S, nv, LS)
-                spd_substitute(LS, b, nv, y)
-                for j in range(m):
-                    if free[j]:
-                        jy = 0.0
-                        for i in range(nv):
-                            jy += rows[j, i] * y[i]
-                        z[j] = (r[j] - jy) / reg[j]
+                if free[j]:
+                    jy = 0.0
+                    for i in range(nv):
+                        jy += rows[j, i] * y[i]
+                    z[j] = (r[j] - jy) / reg[j]
+            for j in range(m):
+                was[j] = free[j]
             if _move_towards(f, z, free):
                 break
-        # the bound row that most wants a force joins: (M f - r)_j = W_j . J^T f - r_j (f_j = 0)
+            for j in range(m):
+                if was[j] and not free[j]:
+                    _add_row_to_system(rows, j, -1.0 / reg[j], r[j], S, b)
+        # the bound row that most wants a force joins: (M f - r)_j = J_j . D^-1 J^T f - r_j (f_j = 0)
         for i in range(nv):
             u[i] = 0.0
         for j in range(m):
             if f[j] != 0.0:
                 for i in range(nv):
                     u[i] += rows[j, i] * f[j]
+        for i in range(nv):
+            acc = 0.0
+            for c in range(nv):
+                acc += Minv[i, c] * u[c]
+            y[i] = acc
         for j in range(m):
             if not free[j]:
                 w = -r[j]
                 for i in range(nv):
-                    w += W[j, i] * u[i]
+                    w += rows[j, i] * y[i]
                 z[j] = w
         j_min = _joining_row(z, free, m, scale)
         if j_min < 0:
             return it
         free[j_min] = True
+        _add_row_to_system(rows, j_min, 1.0 / reg[j_min], r[j_min], S, b)
     return 3 * m + 10
 
 
@@ -1077,36 +1115,56 @@ def soft_contact_rows_into(nv, floating, parents, vidx, f_body, X, kin_R, kin_v,
 
 
 @njit(cache=True, inline="always")
-def cone_projection(p0, p1, p2, slope, H):
+def cone_projection(p0, p1, p2, slope, G):
     """Euclidean projection ``g`` of ``p`` onto the circular cone ``|(g1, g2)| <= slope g0``, and
-    its Jacobian ``dg/dp`` in ``H`` (3, 3): ``p`` itself inside the cone, 0 inside its polar
-    cone, else the nearest point of the cone's surface."""
+    its Jacobian ``dg/dp = G^T G`` as its factor ``G`` (3, 3): ``p`` itself and the identity
+    inside the cone, 0 inside its polar cone, else the nearest point of the cone's surface, where
+    the Jacobian ``k u u^T + s w w^T`` (``k = 1 / (1 + slope^2)``, ``u = (1, slope e1, slope e2)``,
+    ``w = (0, -e2, e1)``, ``e`` the direction of ``(p1, p2)``, ``s = slope g0 / |(p1, p2)|``) has
+    rank 2: ``G``'s rows are ``sqrt(k) u``, ``sqrt(s) w`` and zeros."""
     t = np.sqrt(p1 * p1 + p2 * p2)
     if t <= slope * p0:
         for i in range(3):
             for j in range(3):
-                H[i, j] = 1.0 if i == j else 0.0
+                G[i, j] = 1.0 if i == j else 0.0
         return p0, p1, p2
     if slope * t <= -p0:
-        H[:, :] = 0.0
+        G[:, :] = 0.0
         return 0.0, 0.0, 0.0
     k = 1.0 / (1.0 + slope * slope)
     g0 = (p0 + slope * t) * k
     e1, e2 = p1 / t, p2 / t
-    s = slope * g0 / t
-    H[0, 0] = k
-    H[0, 1] = H[1, 0] = slope * e1 * k
-    H[0, 2] = H[2, 0] = slope * e2 * k
-    H[1, 1] = slope * slope * e1 * e1 * k + s * (1.0 - e1 * e1)
-    H[2, 2] = slope * slope * e2 * e2 * k + s * (1.0 - e2 * e2)
-    H[1, 2] = H[2, 1] = slope * slope * e1 * e2 * k - s * e1 * e2
+    sk, ss = np.sqrt(k), np.sqrt(slope * g0 / t)
+    G[0, 0], G[0, 1], G[0, 2] = sk, sk * slope * e1, sk * slope * e2
+    G[1, 0], G[1, 1], G[1, 2] = 0.0, -ss * e2, ss * e1
+    G[2, 0], G[2, 1], G[2, 2] = 0.0, 0.0, 0.0
     return g0, slope * g0 * e1, slope * g0 * e2
 
 
 @njit(cache=True, inline="always")
-def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Hc):
+def _elliptic_row_cost(lam, y, y0, aref, sR, slope, f, G):
+    """The primal cost of :func:`elliptic_contact_acceleration` at ``a = a0 + D^-1 J^T lam``,
+    given ``y = J a`` and ``y0 = J a0``: ``lam (y - y0) / 2`` (which is ``(a - a0) M (a - a0) / 2``)
+    plus the contacts' terms; the contact forces there in ``f`` and each contact's projection
+    factor (:func:`cone_projection`) in ``G``."""
+    m = y.shape[0]
+    cost = 0.0
+    for j in range(m):
+        cost += 0.5 * lam[j] * (y[j] - y0[j])
+    for c in range(m // 3):
+        r = 3 * c
+        g0, g1, g2 = cone_projection(-(y[r] - aref[r]) / sR[r], -(y[r + 1] - aref[r + 1]) / sR[r + 1],
+                                            -(y[r + 2] - aref[r + 2]) / sR[r + 2], slope, G[c])
+        f[r], f[r + 1], f[r + 2] = g0 / sR[r], g1 / sR[r + 1], g2 / sR[r + 2]
+        cost += 0.5 * (g0 * g0 + g1 * g1 + g2 * g2)
+    return cost
+
+
+@njit(cache=True, inline="always")
+def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Gc):
     """The primal cost of :func:`elliptic_contact_acceleration` at acceleration ``a``; the
-    contact forces there in ``f`` and each contact's projection Jacobian in ``Hc``."""
+    contact forces there in ``f`` and each contact's projection factor (:func:`cone_projection`)
+    in ``Gc``."""
     m, nv = rows.shape
     cost = 0.0
     for i in range(nv):
@@ -1128,7 +1186,7 @@ def _elliptic_cost(rows, aref, sR, slope, a, a0, M, f, Hc):
                 p1 = -w / sR[r]
             else:
                 p2 = -w / sR[r]
-        g0, g1, g2 = cone_projection(p0, p1, p2, slope, Hc[c])
+        g0, g1, g2 = cone_projection(p0, p1, p2, slope, Gc[c])
         f[3 * c], f[3 * c + 1], f[3 * c + 2] = g0 / sR[3 * c], g1 / sR[3 * c + 1], g2 / sR[3 * c + 2]
         cost += 0.5 * (g0 * g0 + g1 * g1 + g2 * g2)
     return cost
@@ -1182,15 +1240,26 @@ def elliptic_scratch(n_contacts: int, nv: int):
     touching points and ``nv`` velocities: a rollout's loop makes them once, so that its steps
     allocate none of them (each step allocated 16).
 
-    Returns the tuple ``(mats, vecs, per_row, cones, per_contact_rows)``: ``mats`` (3, nv, nv)
-    the Cholesky factor, the mass matrix and the Newton matrix; ``vecs`` (5, nv) a unit vector,
-    the acceleration, the gradient, the Newton step and the line search's trial acceleration;
-    ``per_row`` (3, 3 n) the rows' ``sqrt(R)``, reference accelerations and trial forces;
-    ``cones`` (2, n, 3, 3) each contact's projection Jacobian at the current and the trial
-    acceleration; ``per_contact_rows`` (2, 3, nv) one contact's scaled rows and their product
-    with its Jacobian."""
-    return (np.empty((3, nv, nv)), np.empty((5, nv)), np.empty((3, 3 * n_contacts)),
-            np.empty((2, n_contacts, 3, 3)), np.empty((2, 3, nv)))
+    Returns the tuple ``(mats, vecs, per_row, cones, row_mats, row_vecs)``:
+    ``mats`` (3, nv, nv) the Cholesky factor, the mass matrix and the Newton matrix; ``vecs``
+    (4, nv) the acceleration, the gradient, the Newton step and the line search's trial
+    acceleration; ``per_row`` (3, 3 n) the rows' ``sqrt(R)``, reference accelerations and
+    trial forces; ``cones`` (2, n, 3, 3) each contact's projection factor (:func:`cone_projection`)
+    at the current and the trial acceleration; ``row_mats`` (4, max(9 n^2, 3 n nv)) and
+    ``row_vecs`` (10, 3 n) the Newton solve in the rows (:func:`_elliptic_newton_in_rows`):
+    ``A``, ``A B^T``, the Newton system and its factor, and its vectors (the solve in the
+    velocities keeps its scaled rows in the second matrix)."""
+    m = 3 * n_contacts
+    return (np.empty((3, nv, nv)), np.empty((4, nv)), np.empty((3, m)),
+            np.empty((2, n_contacts, 3, 3)), np.empty((4, max(m * m, m * nv))), np.empty((10, m)))
+
+
+#: An elliptic-cone solve with at most this many rows per velocity takes its Newton steps in the
+#: contact rows (:func:`_elliptic_newton_in_rows`, ``O(m^3)`` a step for ``m`` rows), with more
+#: in the velocities (:func:`_elliptic_newton_in_velocities`, ``O(nv^3)``, and ``D``'s inverse
+#: once). Both take the same steps. Measured on COBRA's states (``docs/benchmarks.md``,
+#: "Simulation speed").
+ELLIPTIC_ROWS_PER_VELOCITY = 2
 
 
 @njit(cache=True)
@@ -1200,21 +1269,12 @@ def elliptic_contact_acceleration_into(D, a0, v, rows, depth, drift, weight, mu1
     ``m`` the rows) for ``rows D^-1`` and ``scratch`` from :func:`elliptic_scratch` for at least
     ``m / 3`` contacts and exactly ``nv`` velocities. ``a_out`` may be ``a0`` itself (it is
     written last). The same arithmetic, bit for bit; every scratch entry is written before it
-    is read."""
+    is read. With at most :data:`ELLIPTIC_ROWS_PER_VELOCITY` rows per velocity the Newton steps
+    are taken in the rows (:func:`_elliptic_newton_in_rows`), else in the velocities
+    (:func:`_elliptic_newton_in_velocities`): the same steps, to roundoff."""
     m, nv = rows.shape
-    mats, vecs, per_row, cones, per_contact_rows = scratch
-    L, M, H = mats[0], mats[1], mats[2]
-    unit, a, grad, step, at = vecs[0], vecs[1], vecs[2], vecs[3], vecs[4]
-    sR, aref, ft = per_row[0, :m], per_row[1, :m], per_row[2, :m]
-    nc = m // 3
-    Hc, Ht = cones[0, :nc], cones[1, :nc]
-    Jc, HJ = per_contact_rows[0], per_contact_rows[1]
-    unit[:] = 0.0
-    spd_factor(D, nv, L)
-    for j in range(nv):
-        unit[j] = 1.0
-        spd_substitute(L, unit, nv, M[j])
-        unit[j] = 0.0
+    per_row = scratch[2]
+    sR, aref = per_row[0, :m], per_row[1, :m]
     W = W_buf[:m * nv].reshape((m, nv))
     np.dot(rows, D, W)
     d_max = SOFT_SOLIMP[1]
@@ -1230,11 +1290,161 @@ def elliptic_contact_acceleration_into(D, a0, v, rows, depth, drift, weight, mu1
                 jv += rows[r0 + e, col] * v[col]
             aref[r0 + e] = -bcoef * jv - drift[r0 + e]
         aref[r0] -= kcoef * d * depth[r0]
+    if m <= ELLIPTIC_ROWS_PER_VELOCITY * nv:
+        return _elliptic_newton_in_rows(W, rows, a0, aref, sR, mu1, f, a_out, scratch)
+    return _elliptic_newton_in_velocities(D, W, rows, a0, aref, sR, mu1, f, a_out, scratch)
+
+
+@njit(cache=True)
+def _elliptic_newton_in_rows(W, rows, a0, aref, sR, mu1, f, a_out, scratch):
+    """The Newton iteration of :func:`elliptic_contact_acceleration` in the contact rows: ``a =
+    a0 + D^-1 J^T lam`` (``W = J D^-1``), so that the cost is
+    ``lam A lam / 2 + sum |P(-R^(-1/2) (y - a_ref))|^2 / 2`` with ``y = J a0 + A lam``,
+    ``A = J D^-1 J^T``. The velocities' Newton step ``-(M + J^T S J)^-1 J^T (lam - f)``, ``S``
+    the contacts' curvature ``B^T B`` (``B`` each contact's :func:`cone_projection` factor
+    over ``R^(1/2)``), is ``D^-1 J^T dlam`` with
+
+        dlam = (I + S A)^-1 r = r - B^T (I + B A B^T)^-1 B A r,   r = f - lam,
+
+    (the push-through identity): a symmetric positive definite system of the rows' size, so a
+    step costs ``O(m^3)`` for ``m`` rows and neither ``M`` nor the velocities' system is formed.
+    The line search, the tests and the start are :func:`_elliptic_newton_in_velocities`'; the
+    steps are the same to roundoff. ``scratch``: :func:`elliptic_scratch`'s; returns the Newton
+    iterations."""
+    m, nv = rows.shape
+    nc = m // 3
+    vecs, per_row, cones, row_mats, row_vecs = scratch[1], scratch[2], scratch[3], scratch[4], scratch[5]
+    ft = per_row[2, :m]
+    a, grad, da = vecs[0], vecs[1], vecs[2]
+    G, Gt = cones[0, :nc], cones[1, :nc]
+    A = row_mats[0, :m * m].reshape((m, m))
+    C = row_mats[1, :m * m].reshape((m, m))       # A B^T
+    K = row_mats[2, :m * m].reshape((m, m))       # I + B A B^T (lower triangle)
+    LK = row_mats[3, :m * m].reshape((m, m))
+    lam, y0, y, yt, dy, dlam, r, t, bt, x = (row_vecs[0, :m], row_vecs[1, :m], row_vecs[2, :m], row_vecs[3, :m],
+                                             row_vecs[4, :m], row_vecs[5, :m], row_vecs[6, :m], row_vecs[7, :m],
+                                             row_vecs[8, :m], row_vecs[9, :m])
+    np.dot(W, rows.T, A)
+    for j in range(m):
+        acc = 0.0
+        for col in range(nv):
+            acc += rows[j, col] * a0[col]
+        y0[j] = acc
+        lam[j] = f[j]                             # the last step's forces
+    for j in range(m):
+        acc = y0[j]
+        for k in range(m):
+            acc += A[j, k] * lam[k]
+        y[j] = acc
+    cost = _elliptic_row_cost(lam, y, y0, aref, sR, mu1, f, G)
+    for col in range(nv):
+        acc = a0[col]
+        for j in range(m):
+            acc += W[j, col] * lam[j]
+        a[col] = acc
+    iterations = 0
+    for it in range(1, 51):
+        size = 1e-300                             # the velocities' gradient J^T (lam - f) and its scale
+        for i in range(nv):
+            acc_m, acc_f = 0.0, 0.0
+            for j in range(m):
+                acc_m += rows[j, i] * lam[j]
+                acc_f += rows[j, i] * f[j]
+            grad[i] = acc_m - acc_f
+            size = max(size, abs(acc_m), abs(acc_f))
+        if max_abs(grad) <= 1e-10 * size:
+            break
+        iterations = it
+        for j in range(m):
+            r[j] = f[j] - lam[j]
+        for j in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += A[j, k] * r[k]
+            t[j] = acc
+        for c in range(nc):                       # C = A B^T, B t
+            o = 3 * c
+            for e in range(3):
+                g0, g1, g2 = G[c, e, 0] / sR[o], G[c, e, 1] / sR[o + 1], G[c, e, 2] / sR[o + 2]
+                for i in range(m):
+                    C[i, o + e] = A[i, o] * g0 + A[i, o + 1] * g1 + A[i, o + 2] * g2
+                bt[o + e] = t[o] * g0 + t[o + 1] * g1 + t[o + 2] * g2
+        for c in range(nc):                       # K = I + B C, its lower triangle
+            o = 3 * c
+            for e in range(3):
+                g0, g1, g2 = G[c, e, 0] / sR[o], G[c, e, 1] / sR[o + 1], G[c, e, 2] / sR[o + 2]
+                for j in range(o + e + 1):
+                    K[o + e, j] = g0 * C[o, j] + g1 * C[o + 1, j] + g2 * C[o + 2, j]
+                K[o + e, o + e] += 1.0
+        spd_factor(K, m, LK)
+        spd_substitute(LK, bt, m, x)
+        for c in range(nc):                       # dlam = r - B^T x
+            o = 3 * c
+            for k in range(3):
+                dlam[o + k] = r[o + k] - (G[c, 0, k] * x[o] + G[c, 1, k] * x[o + 1] + G[c, 2, k] * x[o + 2]) / sR[o + k]
+        descent = 0.0                             # the velocities' gradient . step = -(r . A dlam)
+        for j in range(m):
+            acc = 0.0
+            for k in range(m):
+                acc += A[j, k] * dlam[k]
+            dy[j] = acc
+            descent -= r[j] * acc
+        for col in range(nv):
+            acc = 0.0
+            for j in range(m):
+                acc += W[j, col] * dlam[j]
+            da[col] = acc
+        alpha = 1.0
+        while True:
+            for j in range(m):
+                t[j] = lam[j] + alpha * dlam[j]
+                yt[j] = y[j] + alpha * dy[j]
+            ct = _elliptic_row_cost(t, yt, y0, aref, sR, mu1, ft, Gt)
+            if ct <= cost + 1e-4 * alpha * descent or alpha < 1e-10:
+                break
+            alpha *= 0.5
+        moved = 0.0
+        for i in range(nv):
+            moved = max_abs_into(moved, alpha * da[i])
+            a[i] += alpha * da[i]
+        lam[:] = t
+        y[:] = yt
+        f[:m] = ft
+        G[:, :, :] = Gt
+        cost = ct
+        if moved <= 1e-14 * (1.0 + max_abs(a)):
+            break
+    for col in range(nv):                         # a_out may be a0: written last
+        acc = a0[col]
+        for j in range(m):
+            acc += W[j, col] * lam[j]
+        a[col] = acc
+    a_out[:] = a
+    return iterations
+
+
+@njit(cache=True)
+def _elliptic_newton_in_velocities(D, W, rows, a0, aref, sR, mu1, f, a_out, scratch):
+    """The Newton iteration of :func:`elliptic_contact_acceleration` in the velocities: ``D``
+    inverted once into the mass matrix ``M``, each step's system ``M + V^T V`` (nv, nv) with
+    ``V`` the rows scaled by ``R^(-1/2)`` and turned by each contact's projection factor
+    (:func:`cone_projection`; one BLAS product). ``W = J D^-1``; ``scratch``:
+    :func:`elliptic_scratch`'s (``V`` in the rows' solve's second matrix, unused here); returns
+    the Newton iterations."""
+    m, nv = rows.shape
+    mats, vecs, per_row, cones, row_mats = scratch[0], scratch[1], scratch[2], scratch[3], scratch[4]
+    L, M, H = mats[0], mats[1], mats[2]
+    a, grad, step, at = vecs[0], vecs[1], vecs[2], vecs[3]
+    ft = per_row[2, :m]
+    nc = m // 3
+    Gc, Gt = cones[0, :nc], cones[1, :nc]
+    V = row_mats[1, :m * nv].reshape((m, nv))
+    spd_inverse_into(D, L, H, M)      # H is the Newton matrix below
     a[:] = a0
     for col in range(nv):
         for j in range(m):
             a[col] += W[j, col] * f[j]
-    cost = _elliptic_cost(rows, aref, sR, mu1, a, a0, M, f, Hc)
+    cost = _elliptic_cost(rows, aref, sR, mu1, a, a0, M, f, Gc)
     iterations = 0
     for it in range(1, 51):
         size = 1e-300
@@ -1250,25 +1460,16 @@ def elliptic_contact_acceleration_into(D, a0, v, rows, depth, drift, weight, mu1
         if max_abs(grad) <= 1e-10 * size:
             break
         iterations = it
-        H[:, :] = M
-        for c in range(nc):
-            if Hc[c, 0, 0] == 0.0 and Hc[c, 1, 1] == 0.0:
-                continue                      # a contact separating (polar zone): no curvature
+        for c in range(nc):                   # V = G R^(-1/2) J, contact by contact
+            o = 3 * c
             for e in range(3):
+                g0, g1, g2 = Gc[c, e, 0] / sR[o], Gc[c, e, 1] / sR[o + 1], Gc[c, e, 2] / sR[o + 2]
                 for col in range(nv):
-                    Jc[e, col] = rows[3 * c + e, col] / sR[3 * c + e]
-            for e in range(3):
-                for col in range(nv):
-                    HJ[e, col] = Hc[c, e, 0] * Jc[0, col] + Hc[c, e, 1] * Jc[1, col] + Hc[c, e, 2] * Jc[2, col]
-            for i in range(nv):
-                j0, j1, j2 = Jc[0, i], Jc[1, i], Jc[2, i]
-                if j0 == 0.0 and j1 == 0.0 and j2 == 0.0:
-                    continue
-                for j in range(i, nv):
-                    H[i, j] += j0 * HJ[0, j] + j1 * HJ[1, j] + j2 * HJ[2, j]
+                    V[o + e, col] = g0 * rows[o, col] + g1 * rows[o + 1, col] + g2 * rows[o + 2, col]
+        np.dot(V.T, V, H)
         for i in range(nv):
-            for j in range(i):
-                H[i, j] = H[j, i]
+            for j in range(i + 1):
+                H[i, j] += M[i, j]
         spd_factor(H, nv, L)          # H = M + J^T P' J, positive definite
         spd_substitute(L, grad, nv, step)
         for i in range(nv):
@@ -1280,7 +1481,7 @@ def elliptic_contact_acceleration_into(D, a0, v, rows, depth, drift, weight, mu1
         while True:
             for i in range(nv):
                 at[i] = a[i] + alpha * step[i]
-            ct = _elliptic_cost(rows, aref, sR, mu1, at, a0, M, ft, Ht)
+            ct = _elliptic_cost(rows, aref, sR, mu1, at, a0, M, ft, Gt)
             if ct <= cost + 1e-4 * alpha * slope or alpha < 1e-10:
                 break
             alpha *= 0.5
@@ -1289,7 +1490,7 @@ def elliptic_contact_acceleration_into(D, a0, v, rows, depth, drift, weight, mu1
             moved = max_abs_into(moved, at[i] - a[i])
         a[:] = at
         f[:] = ft
-        Hc[:, :, :] = Ht
+        Gc[:, :, :] = Gt
         cost = ct
         if moved <= 1e-14 * (1.0 + max_abs(a)):
             break
@@ -1324,8 +1525,8 @@ def soft_scratch(n_features: int, nv: int):
     return (np.empty(m * nv), np.empty(m), np.empty(m), np.empty((3, nv)), np.empty(m), np.empty(n_features),
             np.empty(m * nv), np.empty(m * m), np.empty(m), np.empty(m, dtype=np.bool_), np.empty(m, dtype=np.int64),
             np.empty((m, m)), np.empty((m, m)), np.empty(m), np.empty(m), np.empty(m), np.empty(m),
-            (np.empty((nv, nv)), np.empty((nv, nv)), np.empty((nv, nv)), np.empty(m * nv), np.empty(m * nv),
-             np.empty(nv), np.empty(nv), np.empty(nv)))
+            (np.empty((nv, nv)), np.empty((nv, nv)), np.empty((nv, nv)), np.empty(m * nv), np.empty(nv),
+             np.empty(nv), np.empty(nv), np.empty(m, dtype=np.bool_)))
 
 
 @njit(cache=True, inline="always")
@@ -1401,7 +1602,7 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
     With more than :data:`THROUGH_VELOCITIES_ROWS_PER_VELOCITY` rows per velocity (a robot at
     rest on all its ends: COBRA's 24 ends give 96 rows for 17 velocities) the same method
     solves each free set through the velocities' system instead
-    (:func:`nonnegative_qp_through_velocities_into`) and ``A`` is never formed.
+    (:func:`nonnegative_qp_through_velocities_into`) and neither ``A`` nor ``J D^-1`` is formed.
 
     Args:
         v: velocity (nv,).
@@ -1430,8 +1631,6 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
         return 0
     mu1, tc = ground[G_MU_C], ground[G_TC]
     W_buf, A_buf, rhs_buf, free, idx, sub, L, rs, zs, z, reg_buf, through = scratch[6:]
-    W = W_buf[:m * nv].reshape((m, nv))
-    np.dot(rows, Minv, W)             # rows D^-1, D^-1 symmetric
     d_max = SOFT_SOLIMP[1]
     bcoef = 2.0 / (d_max * tc)
     kcoef = 1.0 / (d_max * d_max * tc * tc * SOFT_DAMPRATIO * SOFT_DAMPRATIO)
@@ -1448,19 +1647,32 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
                 ja += rows[j, col] * a[col]
             rhs[j] = -bcoef * jv - kcoef * d * depth[j] - drift[j] - ja
     if m > THROUGH_VELOCITIES_ROWS_PER_VELOCITY * nv:
-        iterations = nonnegative_qp_through_velocities_into(rows, W, reg, Minv, rhs, f, free, z, through)
+        iterations = nonnegative_qp_through_velocities_into(rows, reg, Minv, rhs, f, free, z, through)
+        u = through[6]                # J^T f
+        for col in range(nv):
+            acc = 0.0
+            for j in range(m):
+                acc += rows[j, col] * f[j]
+            u[col] = acc
+        for col in range(nv):
+            acc = 0.0
+            for i in range(nv):
+                acc += Minv[col, i] * u[i]
+            a[col] += acc
     else:
+        W = W_buf[:m * nv].reshape((m, nv))
+        np.dot(rows, Minv, W)         # rows D^-1, D^-1 symmetric
         A = A_buf[:m * m].reshape((m, m))
         np.dot(W, rows.T, A)
         for j in range(m):
             A[j, j] += reg[j]
         iterations = nonnegative_qp_into(A, rhs, f, free, idx, sub, L, rs, zs, z)
+        for col in range(nv):
+            acc = 0.0
+            for j in range(m):
+                acc += W[j, col] * f[j]
+            a[col] += acc
     _store_warm(X, f, 4, warm)
-    for col in range(nv):
-        acc = 0.0
-        for j in range(m):
-            acc += W[j, col] * f[j]
-        a[col] += acc
     return iterations
 
 

@@ -225,6 +225,38 @@ def test_the_refit_with_a_named_effect_also_starts_from_the_current_models_groun
     assert len(starts) == 1 and not grids                          # nothing to search: the default diagnosis
 
 
+def test_a_refit_whose_grid_diverges_everywhere_keeps_its_other_starts(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The base fit's grid of grounds, every start of which diverges (``fit_from_shapes`` then
+    raises the simulator's divergence), is left out of the refit with a named effect: the
+    candidate's own start is kept. Every start diverging is the error, naming the effect."""
+    import sysid.discrepancy.diagnose as diagnose
+    from types import SimpleNamespace
+    from integrators.simulator import SimulationDiverged
+    soft = ModelParameters.nominal().with_contact_law("soft_constraint").with_frozen(
+        free=["joint_damping", "contact_time_constant", "contact_rounding"])
+    with_delay = LIBRARY.transform(soft, {"actuator_delay": 0.04})
+    delay = LIBRARY["actuator_delay"]
+    own_start_diverges = []
+
+    def fit(objective, **_):
+        if own_start_diverges:
+            raise SimulationDiverged("t = 0.2 s: the head sank 3 cm")
+        return SimpleNamespace(params=objective.params, cost=1.0)
+        yield  # a computation (sysid.identification.lockstep)
+
+    def grid(objective, fit, whole_run_fits):
+        raise SimulationDiverged("fitting: the simulation diverged from every start (...)")
+
+    monkeypatch.setattr(diagnose, "fit_lsq_steps", fit)
+    monkeypatch.setattr(diagnose, "fit_from_shapes", grid)
+    monkeypatch.setattr(diagnose, "Objective", lambda runs, params, weights: SimpleNamespace(params=params))
+    kept = diagnose.final_refit(with_delay, soft, soft, [], None, diagnose.DiagnoseConfig(), delay)
+    assert kept.params is with_delay
+    own_start_diverges.append(True)
+    with pytest.raises(SimulationDiverged, match="the refit with actuator_delay: the simulation diverged"):
+        diagnose.final_refit(with_delay, soft, soft, [], None, diagnose.DiagnoseConfig(), delay)
+
+
 @pytest.mark.slow
 def test_the_refit_with_a_named_limit_also_starts_from_the_unbent_motor():
     """A 2.5 N m limit named with the motor still bent (as the diagnosis left it where this was

@@ -132,8 +132,9 @@ def test_the_solvers_scratch_carries_nothing_from_one_step_to_the_next(cobra):
 def test_cholesky_solves_the_contact_solvers_systems():
     """The contact solvers' own Cholesky against LAPACK on positive definite systems of their
     sizes (a few rows to a 17-coordinate mass matrix and beyond), conditioned as the pyramid's
-    ``A + R`` is (condition numbers up to about 1e8); only the lower triangle is read, and a
-    matrix that is not positive definite gives NaN, which a rollout reports as a divergence."""
+    ``A + R`` is (condition numbers up to about 1e8), and the inverse made from the factor (the
+    mass matrix from its inverse); only the lower triangle is read, and a matrix that is not
+    positive definite gives NaN, which a rollout reports as a divergence."""
     rng = np.random.default_rng(5)
     for m in (1, 2, 4, 7, 12, 17, 28, 50):
         B = rng.normal(size=(m, m))
@@ -147,6 +148,11 @@ def test_cholesky_solves_the_contact_solvers_systems():
         cond = np.linalg.cond(M)
         assert np.linalg.norm(x - expected) <= 1e-15 * cond * np.linalg.norm(expected) * 10 * m
         np.testing.assert_allclose(np.tril(L) @ np.tril(L).T, M, atol=1e-12 * np.abs(M).max())
+        inverse, X = np.full((m, m), np.nan), np.full((m, m), np.nan)   # the inverse, from the lower triangle
+        K.spd_inverse_into(A, L, X, inverse)
+        expected = np.linalg.inv(M)
+        assert np.abs(inverse - expected).max() <= 1e-15 * cond * np.abs(expected).max() * 10 * m
+        np.testing.assert_allclose(inverse, inverse.T, rtol=0, atol=1e-14 * np.abs(inverse).max())
     L, x = np.empty((2, 2)), np.empty(2)
     K.spd_factor(np.array([[1.0, 2.0], [2.0, 1.0]]), 2, L)             # eigenvalues 3 and -1
     K.spd_substitute(L, np.ones(2), 2, x)
@@ -157,7 +163,8 @@ def test_the_solve_through_the_velocities_is_the_row_systems():
     """The pyramid's active-set method with each free set solved through the velocities
     (Woodbury's identity) against the same method on the formed row system, on random problems
     of 1-100 rows and 3-17 velocities: the same forces to roundoff, the same iterations, and
-    the complementarity conditions hold."""
+    the complementarity conditions hold (the velocities' system updated row by row as the free
+    set changes, over as many as a hundred rows joining and leaving)."""
     rng = np.random.default_rng(11)
     for trial in range(30):
         nv, m = int(rng.integers(3, 18)), int(rng.integers(1, 100))
@@ -170,7 +177,7 @@ def test_the_solve_through_the_velocities_is_the_row_systems():
         start = np.abs(rng.normal(size=m)) * (trial % 2)
         direct, through = start.copy(), start.copy()
         iterations = K.nonnegative_qp(A, r, direct)
-        assert K.nonnegative_qp_through_velocities_into(rows, W, reg, Minv, r, through, np.empty(m, dtype=np.bool_),
+        assert K.nonnegative_qp_through_velocities_into(rows, reg, Minv, r, through, np.empty(m, dtype=np.bool_),
                                                         np.empty(m), K.soft_scratch(m, nv)[-1]) == iterations
         np.testing.assert_allclose(through, direct, rtol=0, atol=1e-12 * np.abs(direct).max())
         w = A @ through - r
@@ -269,20 +276,81 @@ def test_at_rest_the_constraint_holds_the_weight_pushing_only(cobra):
 
 def test_cone_projection_is_the_nearest_point_of_the_cone():
     """Moreau's decomposition: ``p = g + (p - g)`` with ``g`` in the cone, ``p - g`` in its polar
-    cone and the two orthogonal; the Jacobian agrees with central differences."""
+    cone and the two orthogonal; the Jacobian, ``G^T G`` from the factor ``G`` the solvers use,
+    agrees with central differences inside the cone, in its polar cone and on its surface."""
     rng = np.random.default_rng(3)
-    H, Hd = np.empty((3, 3)), np.empty((3, 3))
+    G, Gd = np.empty((3, 3)), np.empty((3, 3))
+    zones = set()
     for _ in range(300):
-        p, slope = rng.normal(size=3), rng.uniform(0.1, 2.0)
-        g = np.array(K.cone_projection(*p, slope, H))
+        p, slope = 2 * rng.normal(size=3), rng.uniform(0.1, 2.0)
+        g = np.array(K.cone_projection(*p, slope, G))
         rest = p - g
         assert np.hypot(g[1], g[2]) <= slope * g[0] + 1e-12                # in the cone
         assert slope * np.hypot(rest[1], rest[2]) <= -rest[0] + 1e-12      # in the polar cone
         assert abs(g @ rest) < 1e-12
         h = 1e-6
-        num = np.column_stack([(np.array(K.cone_projection(*(p + h * e), slope, Hd))
-                                - np.array(K.cone_projection(*(p - h * e), slope, Hd))) / (2 * h) for e in np.eye(3)])
-        np.testing.assert_allclose(H, num, atol=1e-6)
+        num = np.column_stack([(np.array(K.cone_projection(*(p + h * e), slope, Gd))
+                                - np.array(K.cone_projection(*(p - h * e), slope, Gd))) / (2 * h) for e in np.eye(3)])
+        np.testing.assert_allclose(G.T @ G, num, atol=1e-6)
+        zones.add(int(np.linalg.matrix_rank(G.T @ G)))
+    assert zones == {0, 2, 3}                          # every zone was met
+
+
+def elliptic_problem(rng: np.random.Generator, nv: int, nc: int, warm: bool):
+    """A random contact problem of ``nc`` points on ``nv`` velocities, set up as
+    ``elliptic_contact_acceleration_into`` sets it up for its Newton solves."""
+    B = rng.normal(size=(nv, nv))
+    D = np.linalg.inv(B @ B.T + nv * np.eye(nv))
+    rows, v, a0 = rng.normal(size=(3 * nc, nv)), rng.normal(size=nv), 5 * rng.normal(size=nv)
+    depth, drift = -rng.uniform(1e-5, 2e-3, nc), rng.normal(size=3 * nc)
+    weight, mu1, mu2, tc = rng.uniform(0.2, 1.0, nc), 0.3, 0.5, 0.02
+    d_max = K.SOFT_SOLIMP[1]
+    sR, aref = np.empty(3 * nc), np.empty(3 * nc)
+    for c in range(nc):
+        d = K.soft_impedance(depth[c])
+        sn = np.sqrt((1 - d) / d * weight[c])
+        sR[3 * c:3 * c + 3] = sn, sn, sn * mu1 / mu2
+        aref[3 * c:3 * c + 3] = -2 / (d_max * tc) * (rows[3 * c:3 * c + 3] @ v) - drift[3 * c:3 * c + 3]
+        aref[3 * c] -= d / (d_max * tc * K.SOFT_DAMPRATIO) ** 2 * depth[c]
+    start = np.abs(rng.normal(size=3 * nc)) * warm
+    return D, np.ascontiguousarray(rows @ D), rows, a0, aref, sR, mu1, start
+
+
+def test_the_elliptic_newton_steps_in_the_rows_are_those_in_the_velocities():
+    """The elliptic cone's two Newton solves (in the contact rows, used up to
+    ``ELLIPTIC_ROWS_PER_VELOCITY`` rows per velocity, and in the velocities) take the same steps:
+    the same iterations on most problems and as many in all (near the end, roundoff can lead one
+    through a few more halvings of its line search at a kink of the cost), the same accelerations
+    and forces to well within the solve's tolerance; each reads no scratch entry it has not written (scratch full of NaN,
+    and left by a larger problem, gives the answer of fresh scratch bit for bit)."""
+    rng = np.random.default_rng(13)
+    same_iterations, worst, totals = 0, 0.0, np.zeros(2)
+    for trial in range(100):
+        nv, nc = int(rng.integers(6, 18)), int(rng.integers(1, 7))
+        D, W, rows, a0, aref, sR, mu1, start = elliptic_problem(rng, nv, nc, trial % 2 == 1)
+        answers = []
+        for solve in (K._elliptic_newton_in_rows, K._elliptic_newton_in_velocities):
+            per_path = []
+            for scratch in (K.elliptic_scratch(nc, nv), K.elliptic_scratch(nc + 3, nv)):
+                for s in scratch:
+                    s.fill(np.nan)
+                for _ in range(2):                     # the second call on the first call's leftovers
+                    f, a = start.copy(), a0.copy()     # in place, as the loop calls it
+                    args = (W, rows, a, aref, sR, mu1, f, a, scratch)
+                    it = solve(*args) if solve is K._elliptic_newton_in_rows else solve(D, *args)
+                    per_path.append((a, f, it))
+            for a, f, it in per_path[1:]:
+                assert np.all(np.isfinite(a)) and it == per_path[0][2]
+                np.testing.assert_array_equal(a, per_path[0][0])
+                np.testing.assert_array_equal(f, per_path[0][1])
+            answers.append(per_path[0])
+        (a_rows, f_rows, it_rows), (a_vel, f_vel, it_vel) = answers
+        same_iterations += it_rows == it_vel
+        totals += np.array([it_rows, it_vel])
+        worst = max(worst, np.abs(a_rows - a_vel).max() / np.abs(a_vel).max(),
+                    np.abs(f_rows - f_vel).max() / (np.abs(f_vel).max() + 1e-300))
+    assert same_iterations >= 70 and abs(totals[0] - totals[1]) <= 0.05 * totals[1], (same_iterations, totals)
+    assert worst < 1e-7
 
 
 def test_elliptic_forces_solve_the_dual_problem():
@@ -610,6 +678,39 @@ def test_a_fit_from_shapes_starts_at_each_rounding_when_it_is_free_and_keeps_the
     (only,) = fit_from_shapes(Objective(runs, fixed, Weights()), fake_fit).starts
     assert only.values == {} and only.cost == (0.01 - 0.04) ** 2
     assert started == [0.01]  # a frozen shape is kept: one fit from it
+
+
+def test_a_fit_from_shapes_leaves_out_a_start_whose_simulation_diverges():
+    """A start no simulation follows (the stand-in fit raises the simulator's divergence from the
+    middle shape) is left out, recorded and reported; the others' best is kept. Only when every
+    start diverges is that an error, naming the starts."""
+    from types import SimpleNamespace
+
+    from cobra_model.run_files import read_run
+    from integrators.simulator import SimulationDiverged
+    from sysid.identification.contact_choice import ROUNDING_STARTS_M, fit_from_shapes
+    from sysid.identification.objective import Objective, Weights
+
+    runs = [read_run(Path(__file__).resolve().parent.parent / "data" / "reference" / "run_02_0p50hz.csv")]
+
+    def fit_diverging_at(bad):
+        def fake_fit(objective):
+            r0 = objective.params.contact_rounding
+            if r0 in bad:
+                raise SimulationDiverged(f"t = 0.2 s: the head sank 3 cm (rounding {r0})")
+            return SimpleNamespace(cost=(r0 - 0.02) ** 2, seconds=1.0, params=objective.params)
+        return fake_fit
+
+    free = ModelParameters.nominal().with_frozen(free=["mu_c", "contact_rounding"])
+    said = []
+    shapes = fit_from_shapes(Objective(runs, free, Weights()), fit_diverging_at({ROUNDING_STARTS_M[1]}),
+                             progress=said.append)
+    assert shapes.best.params.contact_rounding in (ROUNDING_STARTS_M[0], ROUNDING_STARTS_M[2])
+    assert [s.diverged for s in shapes.starts] == [False, True, False]
+    assert shapes.starts[1].cost is None and shapes.starts[1].to_json()["diverged"] is True
+    assert any("diverged from contact_rounding 0.0225 m" in line for line in said)
+    with pytest.raises(SimulationDiverged, match="diverged from every start.*contact_rounding 0.045 m"):
+        fit_from_shapes(Objective(runs, free, Weights()), fit_diverging_at(set(ROUNDING_STARTS_M)))
 
 
 def test_a_soft_law_fit_starts_on_a_soft_and_the_stiffest_ground_and_screens_the_starts_on_the_first_seconds():

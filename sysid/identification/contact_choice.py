@@ -45,8 +45,9 @@ from cobra_model.errors import InputError
 from cobra_model.parameters import CONTACT_LAWS, ModelParameters
 from cobra_model.run import Run
 from integrators.kernels import CONTACT_LAW_PARAMETERS, SOFT_LAWS
+from integrators.simulator import SimulationDiverged
 from sysid.identification.executor import Executor, LocalExecutor
-from sysid.identification.lockstep import Steps, run_together
+from sysid.identification.lockstep import Steps, run_together, unless_diverged
 from sysid.identification.lsq import DEFAULT_HORIZONS_S, FitResult, fit_lsq_steps
 from sysid.identification.objective import Objective, Weights
 
@@ -149,14 +150,16 @@ def describe_start(values: Mapping[str, float]) -> str:
 class StartFit:
     """One start of :func:`fit_from_shapes`: its starting ``values``, its cost after the screen
     on the first :data:`SCREEN_HORIZON_S` (None when not screened) and its whole-run training
-    cost (None when the screen did not keep it)."""
+    cost (None when the screen did not keep it); ``diverged``: a simulation its fit asked for
+    diverged, and the start was left out."""
 
     values: Mapping[str, float]
     screen_cost: float | None
     cost: float | None
+    diverged: bool = False
 
     def to_json(self) -> dict:
-        return {**self.values, "screen_cost": self.screen_cost, "train_cost": self.cost}
+        return {**self.values, "screen_cost": self.screen_cost, "train_cost": self.cost, "diverged": self.diverged}
 
     def describe(self) -> str:
         """The start's values (:func:`describe_start`)."""
@@ -174,14 +177,20 @@ class ShapeFits:
 
 
 def fit_each(fit: Callable[[Objective], FitResult | Steps[FitResult]], objectives: Sequence[Objective]
-             ) -> list[FitResult]:
-    """``fit`` of each objective. Where ``fit`` returns a computation
+             ) -> list[FitResult | None]:
+    """``fit`` of each objective, None for one whose simulation diverged (a start no simulation
+    follows: the others go on). Where ``fit`` returns a computation
     (:func:`sysid.identification.lsq.fit_lsq_steps`) rather than a result, the fits run
     together (:func:`sysid.identification.lockstep.run_together`: their evaluations share
     batches, their results bit-for-bit those of one after the other)."""
-    out = [fit(o) for o in objectives]
+    out: list = []
+    for o in objectives:
+        try:
+            out.append(fit(o))
+        except SimulationDiverged:
+            out.append(None)
     steps = [k for k, r in enumerate(out) if isinstance(r, Generator)]
-    for k, result in zip(steps, run_together([out[k] for k in steps])):
+    for k, result in zip(steps, run_together([unless_diverged(out[k]) for k in steps])):
         out[k] = result
     return out
 
@@ -192,7 +201,9 @@ def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult |
                     whole_run_fits: int = WHOLE_RUN_FITS) -> ShapeFits:
     """``fit`` of ``objective`` from each of its starts (:func:`fit_starts`: the shapes of the
     module ends and, under a soft law, a soft and a stiff ground), the lowest training cost kept;
-    one fit from its own start when neither shape nor stiffness is free.
+    one fit from its own start when neither shape nor stiffness is free. A start whose fit asks
+    for a simulation that diverges is left out (``StartFit.diverged``); only when every start's
+    does is that an error.
 
     With more starts than ``whole_run_fits``, each is first fitted on the runs' first
     :data:`SCREEN_HORIZON_S` and only the ``whole_run_fits`` lowest of those go on, each from
@@ -211,7 +222,8 @@ def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult |
                      f"{SCREEN_HORIZON_S:g} s")
         screened = fit_each(fit, [objective.with_params(start.with_values(**values)).truncated(SCREEN_HORIZON_S)
                                   for values in starts])
-        kept = sorted(sorted(range(len(starts)), key=lambda k: screened[k].cost)[:whole_run_fits])
+        kept = sorted(sorted((k for k in range(len(starts)) if screened[k] is not None),
+                             key=lambda k: screened[k].cost)[:whole_run_fits])
     else:
         kept = list(range(len(starts)))
     if progress is not None:
@@ -219,9 +231,18 @@ def fit_from_shapes(objective: Objective, fit: Callable[[Objective], FitResult |
     whole = dict(zip(kept, fit_each(fit, [objective.with_params(screened[k].params if screened[k] is not None
                                                                 else start.with_values(**starts[k]))
                                           for k in kept])))
+    diverged = [(screen and screened[k] is None) or (k in whole and whole[k] is None) for k in range(len(starts))]
     records = tuple(StartFit(values, screened[k].cost if screened[k] is not None else None,
-                             whole[k].cost if k in whole else None) for k, values in enumerate(starts))
-    return ShapeFits(min(whole.values(), key=lambda r: r.cost), records, time.perf_counter() - t0)
+                             whole[k].cost if whole.get(k) is not None else None, diverged[k])
+                    for k, values in enumerate(starts))
+    fits = [r for r in whole.values() if r is not None]
+    if not fits:
+        raise SimulationDiverged(f"{label}: the simulation diverged from every start "
+                                 f"({'; '.join(map(describe_start, starts))})")
+    if any(diverged) and progress is not None:
+        progress(f"{label}: the simulation diverged from "
+                 f"{'; '.join(describe_start(v) for v, d in zip(starts, diverged) if d)}; that start left out")
+    return ShapeFits(min(fits, key=lambda r: r.cost), records, time.perf_counter() - t0)
 
 
 @dataclass(frozen=True)
