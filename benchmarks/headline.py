@@ -461,6 +461,12 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-12-05T08:14", "d037118", "figures from seeds 34-36, which mechanisms were found on",
      ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff")),
+    # the elliptic cone's Newton in the rows, the pyramid's system through the velocities updated
+    # row by row: the same solutions to roundoff, the last bits of every soft-law rollout moved
+    ("2026-12-05T10:14", "9d0acfc", "the soft laws' solves in the rows and row by row (soft laws' last bits)",
+     ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff",
+      "mujoco_robustness_soft_constraint", "mujoco_fit_residual", "mujoco_fit_residual_stiff", "contact_law",
+      "contact_step", "channel_weighting", "sim_speed")),
 )
 
 
