@@ -56,7 +56,7 @@ def _speed(doc: dict) -> list[tuple[str, str, str]]:
     if soft:
         out.append(("simulator step under the soft-constraint contact law (MuJoCo's) against MuJoCo's",
                     f"{soft[0]['ratio_to_mujoco']:.3f}x ({soft[0]['us_per_step']:.1f} us)", "<= 0.5x"))
-    elliptic = [r for p, r in rows.items() if p.endswith("soft_elliptic contact law") and "ratio_to_mujoco_elliptic" in r]
+    elliptic = [r for p, r in rows.items() if p.endswith("soft_elliptic contact law")]
     if elliptic:  # the same contact problem: MuJoCo's elliptic cone
         out.append(("simulator step under the soft-constraint law on the elliptic cone against MuJoCo's on its "
                     "elliptic cone",
@@ -344,19 +344,32 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #: - The pyramid's solve with more than four rows per velocity goes through the velocities
 #:   (``integrators.kernels.nonnegative_qp_through_velocities_into``; CHANGELOG "sixty-second
 #:   stop"): the last bits of every soft-law rollout (each starts at rest on its ends).
+#: - A candidate closer to none than the hardware resolves (a backlash under one encoder count)
+#:   is set aside unchecked (``sysid.discrepancy.effects.Effect.resolution``; CHANGELOG
+#:   "sixty-third stop"): every diagnosis in which one ranked first; the matrix's seeds 34-36
+#:   became development seeds, its figures come from 37-39.
+#: - The elliptic cone's Newton in the contact rows, the pyramid's system through the
+#:   velocities updated row by row (CHANGELOG "sixty-third stop"): the last bits of every
+#:   soft-law rollout.
+#: The confusion matrix's results files (every engine, law and configuration).
+MATRIX_FILES = ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint",
+                "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff")
+#: Every results file of diagnoses: a change to naming may move any of them.
+DIAGNOSIS_FILES = MATRIX_FILES + ("diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
+                                  "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff",
+                                  "mujoco_robustness_stiff_current")
+#: Every results file with a soft-law rollout in it: a change to those solves moves their last bits.
+SOFT_LAW_FILES = ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff",
+                  "mujoco_robustness_soft_constraint", "mujoco_fit_residual", "mujoco_fit_residual_stiff",
+                  "contact_law", "contact_step", "channel_weighting", "sim_speed")
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
     ("2026-11-26T08:57", "0af405b", "naming",
      ("diagnose_matrix", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
       "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_stiff")),
-    ("2026-11-26T19:10", "e45074c", "near-limit torque limit 3.9 N m",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff")),
-    ("2026-11-26T21:05", "1117380", "torque-limit profile",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_stiff", "mujoco_robustness_stiff_current", "mujoco_robustness_soft_constraint")),
+    ("2026-11-26T19:10", "e45074c", "near-limit torque limit 3.9 N m", MATRIX_FILES),
+    ("2026-11-26T21:05", "1117380", "torque-limit profile", DIAGNOSIS_FILES),
     # single rollouts in one compiled loop (results bit for bit the same; wall times and per-step costs shorter)
     ("2026-11-27T03:58", "66f05b2", "wall times and step costs of single rollouts", ("diagnose_accuracy", "contact_law")),
     # each environment of a batch through its whole rollout on a worker thread: batches equal single
@@ -382,10 +395,7 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
      ("fit_speed", "diagnose_accuracy")),
     # the refit with a named effect also from the current model's ground (shape, stiffness) when
     # the candidate's refit moved it: the gap after naming, and later rounds, may move
-    ("2026-11-29T03:10", "6abee05", "the refit after naming from the current model's ground too",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+    ("2026-11-29T03:10", "6abee05", "the refit after naming from the current model's ground too", DIAGNOSIS_FILES),
     # ... and from the base fit's grid of grounds when their shape or stiffness is free (every
     # diagnosis of MuJoCo's runs; this simulator's rows, whose ground is frozen, are unchanged)
     ("2026-11-29T07:44", "713ddd2", "the refit after naming from the base fit's grid of grounds too (MuJoCo's rows)",
@@ -395,9 +405,7 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # a torque limit screened from the bent and from the unbent motor apart, each refitted (the
     # lower training cost kept); the bent base skipped when its best grid value is the limit off
     ("2026-11-29T15:33", "3334ddd", "the torque limit screened from the bent and the unbent motor apart",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+     DIAGNOSIS_FILES),
     # the pyramid's solver on scratch arrays made once per rollout loop (results bit for bit the
     # same; its step about 5 % shorter)
     ("2026-12-01T19:01", "989ebae", "the pyramid's step cost", ("contact_law",)),
@@ -409,15 +417,10 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
       "mujoco_robustness_soft_constraint")),
     # the refit after naming an effect that bends parameters (a torque limit) also from the
     # candidate with them unbent: every diagnosis that names a torque limit may end elsewhere
-    ("2026-12-02T17:03", "b452bed", "the refit after naming a torque limit from the unbent motor too",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+    ("2026-12-02T17:03", "b452bed", "the refit after naming a torque limit from the unbent motor too", DIAGNOSIS_FILES),
     # that refit also from the base fit's own start with the limit's value (the ground bent too)
     ("2026-12-02T23:18", "c938aa3", "the refit after naming a torque limit from the base fit's own start too",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+     DIAGNOSIS_FILES),
     # MuJoCo's twin carries a payload on the head: its matrices and signal table hide
     # link_mass_error too (six effects, fifteen pairs: the pairs' seeds, cycled, moved)
     ("2026-12-03T20:25", "afdf753", "a payload hidden on MuJoCo's side too",
@@ -430,9 +433,7 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # the refit after naming a torque limit: its starts at the unbent motor and at the base fit's
     # start fitted over the horizon's continuation (every diagnosis naming a limit may end elsewhere)
     ("2026-12-04T20:49", "1c38882", "the refit after naming a torque limit over the horizon's continuation",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+     DIAGNOSIS_FILES),
     # Pinocchio's ABA in the WORLD convention for the compliant ground (the soft laws took it
     # already): step costs shorter, the last bits of every compliant-law rollout moved (within
     # 1e-14 m over 20 s), so a fit's or a diagnosis's result may move where its cost is rough;
@@ -441,32 +442,14 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
      ("sim_speed", "fit_speed", "coverage", "channel_weighting", "diagnose_matrix", "diagnose_matrix_current",
       "diagnose_matrix_choose", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
       "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
-    ("2026-12-05T02:49", "c4df0f7", "the second look when no screened candidate passes",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
-    ("2026-12-05T05:20", "1fc59a4", "figures from seeds 31-33, which mechanisms were found on",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff")),
+    ("2026-12-05T02:49", "c4df0f7", "the second look when no screened candidate passes", DIAGNOSIS_FILES),
+    ("2026-12-05T05:20", "1fc59a4", "figures from seeds 31-33, which mechanisms were found on", MATRIX_FILES),
     ("2026-12-05T07:10", "dbe43b4", "the pyramid's solve through the velocities on many rows (soft law's last bits)",
-     ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff",
-      "mujoco_robustness_soft_constraint", "mujoco_fit_residual", "mujoco_fit_residual_stiff", "contact_law",
-      "contact_step", "channel_weighting", "sim_speed")),
-    # a candidate within its effect's resolution of none (a backlash under one encoder count) is
-    # set aside unchecked: a diagnosis where one ranked first may name another effect
-    ("2026-12-05T08:14", "d037118", "a backlash under one encoder count named",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_soft_constraint", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
-    ("2026-12-05T08:14", "d037118", "figures from seeds 34-36, which mechanisms were found on",
-     ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint", "diagnose_matrix_choose",
-      "diagnose_matrix_soft_constraint_stiff")),
-    # the elliptic cone's Newton in the rows, the pyramid's system through the velocities updated
-    # row by row: the same solutions to roundoff, the last bits of every soft-law rollout moved
+     SOFT_LAW_FILES),
+    ("2026-12-05T08:14", "d037118", "a backlash under one encoder count named", DIAGNOSIS_FILES),
+    ("2026-12-05T08:14", "d037118", "figures from seeds 34-36, which mechanisms were found on", MATRIX_FILES),
     ("2026-12-05T10:14", "9d0acfc", "the soft laws' solves in the rows and row by row (soft laws' last bits)",
-     ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff",
-      "mujoco_robustness_soft_constraint", "mujoco_fit_residual", "mujoco_fit_residual_stiff", "contact_law",
-      "contact_step", "channel_weighting", "sim_speed")),
+     SOFT_LAW_FILES),
 )
 
 

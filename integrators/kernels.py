@@ -834,14 +834,20 @@ def _move_towards(f, z, free) -> bool:
 
 
 @njit(cache=True, inline="always")
-def _joining_row(w, free, m, scale) -> int:
+def _joining_row(P, x, r, free, m, scale, w) -> int:
     """The active-set method's next free row (:func:`nonnegative_qp`): of the first ``m`` rows,
-    the bound one whose ``w = (M f - r)_j`` (in ``w``) is the most negative, below ``-scale``;
-    -1 when none is (the solution)."""
+    the bound one whose ``w_j = P_j . x - r_j``, ``(M f - r)_j`` (into ``w``), is the most
+    negative, below ``-scale``; -1 when none is (the solution). ``P_j . x`` is ``M_j . f`` on
+    the formed system, ``J_j . D^-1 J^T f`` through the velocities."""
     w_min, j_min = -scale, -1
     for j in range(m):
-        if not free[j] and w[j] < w_min:
-            w_min, j_min = w[j], j
+        if not free[j]:
+            wj = -r[j]
+            for c in range(x.shape[0]):
+                wj += P[j, c] * x[c]
+            w[j] = wj
+            if wj < w_min:
+                w_min, j_min = wj, j
     return j_min
 
 
@@ -890,14 +896,8 @@ def nonnegative_qp_into(M, r, f, free, idx, sub, L, rs, zs, z):
                     z[idx[a]] = zs[a]
             if _move_towards(f, z, free):
                 break
-        # the bound row that most wants a force joins: (M f - r)_j of the bound rows into z
-        for j in range(m):
-            if not free[j]:
-                w = -r[j]
-                for c in range(m):
-                    w += M[j, c] * f[c]
-                z[j] = w
-        j_min = _joining_row(z, free, m, scale)
+        # the bound row that most wants a force joins
+        j_min = _joining_row(M, f[:m], r, free, m, scale, z)
         if j_min < 0:
             return it
         free[j_min] = True
@@ -949,7 +949,8 @@ def nonnegative_qp_through_velocities_into(rows, reg, Minv, r, f, free, z, scrat
             (nv,) vectors and an (m,) bool), every entry written before it is read.
 
     Returns:
-        the number of iterations.
+        the number of iterations; ``scratch``'s ``y`` holds ``D^-1 J^T f`` of the solution (what
+        the forces add to the acceleration).
     """
     m, nv = rows.shape
     D, S, LS, H_buf, b, y, u, was = scratch
@@ -1006,13 +1007,7 @@ def nonnegative_qp_through_velocities_into(rows, reg, Minv, r, f, free, z, scrat
             for c in range(nv):
                 acc += Minv[i, c] * u[c]
             y[i] = acc
-        for j in range(m):
-            if not free[j]:
-                w = -r[j]
-                for i in range(nv):
-                    w += rows[j, i] * y[i]
-                z[j] = w
-        j_min = _joining_row(z, free, m, scale)
+        j_min = _joining_row(rows, y, r, free, m, scale, z)
         if j_min < 0:
             return it
         free[j_min] = True
@@ -1154,7 +1149,7 @@ def _elliptic_row_cost(lam, y, y0, aref, sR, slope, f, G):
     for c in range(m // 3):
         r = 3 * c
         g0, g1, g2 = cone_projection(-(y[r] - aref[r]) / sR[r], -(y[r + 1] - aref[r + 1]) / sR[r + 1],
-                                            -(y[r + 2] - aref[r + 2]) / sR[r + 2], slope, G[c])
+                                     -(y[r + 2] - aref[r + 2]) / sR[r + 2], slope, G[c])
         f[r], f[r + 1], f[r + 2] = g0 / sR[r], g1 / sR[r + 1], g2 / sR[r + 2]
         cost += 0.5 * (g0 * g0 + g1 * g1 + g2 * g2)
     return cost
@@ -1648,17 +1643,9 @@ def soft_contact_acceleration(v, Minv, floating, parents, vidx, f_body, X, kin_R
             rhs[j] = -bcoef * jv - kcoef * d * depth[j] - drift[j] - ja
     if m > THROUGH_VELOCITIES_ROWS_PER_VELOCITY * nv:
         iterations = nonnegative_qp_through_velocities_into(rows, reg, Minv, rhs, f, free, z, through)
-        u = through[6]                # J^T f
+        y = through[5]                # D^-1 J^T f, left by the solve
         for col in range(nv):
-            acc = 0.0
-            for j in range(m):
-                acc += rows[j, col] * f[j]
-            u[col] = acc
-        for col in range(nv):
-            acc = 0.0
-            for i in range(nv):
-                acc += Minv[col, i] * u[i]
-            a[col] += acc
+            a[col] += y[col]
     else:
         W = W_buf[:m * nv].reshape((m, nv))
         np.dot(rows, Minv, W)         # rows D^-1, D^-1 symmetric

@@ -845,9 +845,9 @@ def final_refit(candidate: ModelParameters, current: ModelParameters, origin: Mo
     fit's 20 ms it reaches 24 ms (ratio 2.08 for 2.0, limit 2.55 for 2.5 N m, head 5.7 mm).
 
     A start from which the simulation diverges is left out, the grid's too (the others are
-    fitted; only when every one diverges is that an error): a start assembled from two fits can be one no
-    simulation follows, as the named effect at its value on the base fit's ground, which was
-    fitted without it. Seen on MuJoCo's runs with a 0.03 rad encoder offset and a 0.8 kg
+    fitted; only when every one diverges is that an error): a start assembled from two fits can
+    be one no simulation follows, as the named effect at its value on the base fit's ground,
+    which was fitted without it. Seen on MuJoCo's runs with a 0.03 rad encoder offset and a 0.8 kg
     payload hidden together (the confusion matrix's pair, evaluation seed 36, the law chosen
     among two): one start's head sank 3 cm into its ground within 0.2 s, and the diagnosis
     stopped there with the divergence's error.
@@ -894,8 +894,9 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
     (returned with that fit) only on the evidence :func:`choose` asks for, measured on the whole
     runs: the held-out cost down by ``min_improvement`` against the baseline joined with the
     whole runs' refit of its model without the effect, every held-out run improved, the
-    training runs' ``dBIC < bic_threshold`` against that refit, a physical value resolved from none, and the effect
-    carrying ``min_improvement`` of the held-out cost itself (:func:`effect_share`).
+    training runs' ``dBIC < bic_threshold`` against that refit, a physical value resolved from
+    none, and the effect carrying ``min_improvement`` of the held-out cost itself
+    (:func:`effect_share`).
 
     Returns:
         the candidate with its whole runs' evidence (``whole_runs``), that refit, and whether

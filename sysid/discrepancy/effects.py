@@ -122,7 +122,8 @@ class Effect:
         if self.resolution is None or abs(value - p.value) >= self.resolution:
             return None
         unit = "" if p.unit == "1" else f" {p.unit}"
-        return (f"{p.name} = {value:.4g}{unit} is closer to none than the hardware resolves ({self.resolution:.4g}{unit})")
+        return (f"{p.name} = {value:.4g}{unit} is closer to none than the hardware resolves "
+                f"({self.resolution:.4g}{unit})")
 
     def parameters(self, value: float | None = None, *, frozen: bool = False) -> list[Parameter]:
         """The effect's parameter at ``value`` (default: its fitting start), free unless ``frozen``."""
