@@ -55,7 +55,10 @@
    and, when either is free, from the base fit's own grid of them (its starts, not starts around
    the candidate's ground), and, for an effect that a fit lacking it bends parameters to mimic
    (``Effect.bends``), also from the candidate with those back where the base fit started
-   (:func:`final_refit`); the lowest training cost is kept. Repeat for up to ``max_effects``.
+   (:func:`final_refit`); the lowest training cost is kept. The named value is that refit's,
+   and it must be physical together with its 95 % interval: an effect whose interval reaches
+   outside its physical range is reported as a proxy instead, and the next candidate is checked
+   (:func:`name_one`). Repeat for up to ``max_effects``.
 """
 from __future__ import annotations
 
@@ -693,6 +696,46 @@ def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: 
         pending = [replace(c, refit_without=True, effect_share=share) if c.name == top.name else c for c in pending]
 
 
+def name_one(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: DiagnoseConfig,
+             library: EffectLibrary, refit_without: Callable[[Candidate], tuple[Baseline, float]],
+             look: Callable[[list[Candidate], Baseline], tuple[Candidate | None, FitResult | None, bool]],
+             refit: Callable[[Candidate], FitResult], progress: Callable[[str], None] = lambda m: None
+             ) -> tuple[Candidate | None, FitResult | None, list[Candidate], list[Candidate]]:
+    """One round's naming: the candidate named (or None) with the refit that names it, all
+    candidates ranked, and the proxies, best first.
+
+    :func:`choose` picks the candidate (``refit_without`` as there) and ``refit`` refits the
+    model with it on the whole runs (:func:`final_refit`); when it picks none, ``look`` gives
+    the second look (:func:`second_look`: the candidate with its whole runs' evidence, which
+    replaces its screening's, that refit, and whether it is named). The named value is the
+    refit's, and it must be physical together with its 95 % interval
+    (:meth:`sysid.discrepancy.effects.Effect.implausible`): a candidate whose refit's interval
+    reaches outside its effect's physical range is set aside as a proxy (with the refit's value
+    and the reason), its refit discarded, and the choice made again without it.
+    """
+    rejected: list[Candidate] = []
+    while True:
+        best, candidates, proxies, baseline = choose(candidates, baseline, n, config, refit_without)
+        if best is None:
+            looked, final, named_now = look(candidates, baseline)
+            if looked is not None:
+                candidates = [looked if c.name == looked.name else c for c in candidates]
+            best = looked if named_now else None
+        else:
+            final = refit(best)
+        if best is None:
+            return None, None, rank(candidates + rejected), proxies + rejected
+        effect = library[best.name]
+        interval = next((r for r in final.report if r.name == effect.parameter.name), None)
+        value = final.params.value(effect.parameter.name)
+        why = effect.implausible(value, (interval.ci_low, interval.ci_high) if interval else None)
+        if why is None:
+            return best, final, rank(candidates + rejected), proxies + rejected
+        progress(f"{best.name} refitted: {why}; not named")
+        rejected.append(replace(best, value=value, implausible=why))
+        candidates = [c for c in candidates if c.name != best.name]
+
+
 #: Perturbations (count, and size in unit coordinates: 0.01 % of each free parameter's range, a
 #: hundredth of the fit's finite-difference step) over which :func:`effect_share` takes its
 #: least share. Near the optimum of this simulator's smooth soft ground they change the held-out
@@ -1101,20 +1144,21 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
                 effect_share(c, effect, holdout, weights)])
             return Baseline(2.0 * alone.cost, hold), share
 
-        best, candidates, proxies, baseline = choose(candidates, baseline, n, config, refit_without)
+        def look(candidates: list[Candidate], baseline: Baseline, round_: int = round_
+                 ) -> tuple[Candidate | None, FitResult | None, bool]:
+            return second_look(candidates, baseline, current, start, fit_set, holdout, weights, config, library,
+                               lambda message: progress(f"round {round_ + 1}: {message}"))
+
+        def refit(best: Candidate, round_: int = round_) -> FitResult:
+            progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
+            return final_refit(best.params, current, start, fit_set, weights, config, library[best.name])
+
+        best, final, candidates, proxies = name_one(candidates, baseline, n, config, library, refit_without, look,
+                                                    refit, lambda message, round_=round_: progress(
+                                                        f"round {round_ + 1}: {message}"))
         known = {s.name for s in result.structural}
         result.structural += [StructuralDifference(c.name, c.value, c.unit, c.implausible, c.held_out_improvement,
                                                    round_ + 1) for c in proxies if c.name not in known]
-        if best is None:
-            looked, final, named_now = second_look(candidates, baseline, current, start, fit_set, holdout, weights,
-                                                   config, library,
-                                                   lambda message, round_=round_: progress(f"round {round_ + 1}: {message}"))
-            if looked is not None:  # its whole runs' evidence replaces its screening's, named or not
-                candidates = [looked if c.name == looked.name else c for c in candidates]
-            best = looked if named_now else None
-        else:
-            progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
-            final = final_refit(best.params, current, start, fit_set, weights, config, library[best.name])
         result.rounds.append(candidates)
         if best is None:
             break
