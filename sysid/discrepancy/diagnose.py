@@ -47,7 +47,7 @@
    training cost down by ``min_improvement``) gets a second look (:func:`second_look`): refitted
    on the whole training runs as naming it would be, and judged by the same rules there (two
    effects missing together bend each other's short screening refits). When that names nothing
-   in the first round either, the second look's candidate is refitted on the whole runs with
+   either and two more effects may be named (``max_effects``), the second look's candidate is refitted on the whole runs with
    each other supported candidate as a partner, and the best pair is named, both or neither, by
    the same rules for the pair (:func:`partnered_look`: two effects can bend each other so far
    that neither alone predicts a held-out run).
