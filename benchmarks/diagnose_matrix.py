@@ -253,6 +253,9 @@ def run_job(job: Job) -> dict[str, Any]:
             "named": named[0] if named else None, "named_all": named,
             # each named effect's fitted value (parameter units): an effect named at its inactive value is no effect
             "named_values": {e.name: e.value for e in d.effects},
+            "named_ci95": {e.name: list(e.ci95) if e.ci95 else None for e in d.effects},
+            # each structural difference with why it is no physical value of its effect
+            "structural_why": {s.name: s.why for s in d.structural},
             "all_named": bool(job.hidden) and set(job.hidden) <= set(named),
             "structural": [s.name for s in d.structural],
             "head_final_before_m": before.head_final_error_m, "head_final_after_m": after.head_final_error_m,

@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -9,10 +10,11 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.errors import InputError
 from integrators.simulator import Simulator
-from sysid.discrepancy.diagnose import Baseline, Candidate, DiagnoseConfig, choose, diagnose, effect_share
+from sysid.discrepancy.diagnose import Baseline, Candidate, DiagnoseConfig, choose, diagnose, effect_share, name_one
 from sysid.identification.lockstep import run
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.dataset import RunPlan, record
+from sysid.identification.lsq import ParameterReport
 from sysid.identification.objective import Weights
 
 LIBRARY = EffectLibrary()
@@ -133,6 +135,70 @@ def test_implausible_values_are_those_outside_the_physical_range_or_at_a_bound()
     # an effect without a stated range: a value on the bound the fit pushed it to is no physical value
     open_ended = replace(aniso, plausible=None)
     assert "at its bound 5" in open_ended.implausible(4.999) and open_ended.implausible(3.9) is None
+
+
+def test_an_interval_reaching_outside_the_physical_range_away_from_none_is_implausible():
+    """The proxy of development seed 34 (MuJoCo's isotropic ground under the compliant law, a
+    joint friction and a delay hidden): a ratio of 0.531 inside the range, its interval not."""
+    lib = EffectLibrary()
+    aniso, friction, limit = lib["anisotropic_ground_friction"], lib["joint_coulomb_friction"], lib["torque_saturation"]
+    assert "[0.3869, 0.6755]" in aniso.implausible(0.5312, (0.3869, 0.6755))
+    assert aniso.implausible(0.5312, (0.51, 0.56)) is None
+    assert "reaching outside" in aniso.implausible(2.8, (2.5, 3.1))
+    assert "reaching outside" in limit.implausible(1.2, (0.8, 1.6))
+    # reaching past the inactive value's side only says the effect may be absent: not this test's
+    assert friction.implausible(0.05, (-0.01, 0.11)) is None
+    assert limit.implausible(9.0, (8.0, 10.5)) is None
+    assert aniso.implausible(0.5312, (float("nan"), float("nan"))) is None     # no interval: no judgement
+    for effect in lib:     # the hidden magnitudes with a 10 % interval are physical
+        v = effect.realistic
+        assert effect.implausible(v, (0.9 * v, 1.1 * v) if v > 0 else (1.1 * v, 0.9 * v)) is None, effect.name
+
+
+def refit_at(name: str, value: float, ci95: tuple[float, float]) -> SimpleNamespace:
+    """Stands in for a final refit (:func:`final_refit`): the model with the effect at ``value``
+    and that parameter's report line with the 95 % interval ``ci95``."""
+    p = LIBRARY[name].parameter
+    return SimpleNamespace(params=LIBRARY.transform(ModelParameters.nominal(), {name: value}),
+                           report=[ParameterReport(p.name, p.unit, p.value, value, value, *ci95, False, True, "")])
+
+
+def test_a_named_effect_whose_refit_interval_reaches_outside_its_range_is_a_proxy_and_the_next_is_named():
+    aniso, friction = "anisotropic_ground_friction", "joint_coulomb_friction"
+    fits = {aniso: refit_at(aniso, 0.5312, (0.3869, 0.6755)), friction: refit_at(friction, 0.3, (0.27, 0.33))}
+    refitted: list[str] = []
+
+    def refit(c: Candidate):
+        refitted.append(c.name)
+        return fits[c.name]
+
+    def look(cands, baseline):
+        raise AssertionError("no second look when a candidate is named")
+
+    cands = [candidate(aniso, 2_000.0, [20.0, 20.0, 20.0]), candidate(friction, 3_000.0, [40.0, 40.0, 40.0])]
+    found, final, ranked, proxies = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY,
+                                             RefitWithout({aniso: BASELINE, friction: BASELINE}), look, refit)
+    assert refitted == [aniso, friction]
+    assert [c.name for c in found] == [friction] and final is fits[friction]
+    assert [p.name for p in proxies] == [aniso] and proxies[0].value == 0.5312
+    assert "[0.3869, 0.6755]" in proxies[0].implausible
+    assert {c.name for c in ranked} == {aniso, friction}          # the report still shows both
+
+
+def test_with_the_proxy_set_aside_and_nothing_else_significant_the_second_look_gets_the_rest():
+    aniso, friction = "anisotropic_ground_friction", "joint_coulomb_friction"
+    looked_at: list[list[str]] = []
+
+    def look(cands, baseline):
+        looked_at.append([c.name for c in cands])
+        return None, None, False
+
+    cands = [candidate(aniso, 2_000.0, [20.0, 20.0, 20.0]), candidate(friction, 9_500.0, [95.0, 95.0, 95.0])]
+    found, final, ranked, proxies = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY,
+                                             RefitWithout({aniso: BASELINE}), look,
+                                             lambda c: refit_at(aniso, 0.5312, (0.3869, 0.6755)))
+    assert found == [] and final is None and looked_at == [[friction]]
+    assert [p.name for p in proxies] == [aniso]
 
 
 def test_a_candidate_closer_to_none_than_the_hardware_resolves_is_not_named_nor_a_proxy():

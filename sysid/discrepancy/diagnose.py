@@ -46,7 +46,11 @@
    When no candidate passes, the one the training runs support most (a physical value, its
    training cost down by ``min_improvement``) gets a second look (:func:`second_look`): refitted
    on the whole training runs as naming it would be, and judged by the same rules there (two
-   effects missing together bend each other's short screening refits).
+   effects missing together bend each other's short screening refits). When that names nothing
+   either and two more effects may be named (``max_effects``), the second look's candidate is refitted on the whole runs with
+   each other supported candidate as a partner, and the best pair is named, both or neither, by
+   the same rules for the pair (:func:`partnered_look`: two effects can bend each other so far
+   that neither alone predicts a held-out run).
    Otherwise the report says that no candidate explains the gap and describes the signature.
 5. **Add it and refit** all free parameters with the effect on the whole training runs, starting
    from the candidate's refit (screening uses each run's first ``SCREEN_HORIZON_S`` seconds, so
@@ -55,7 +59,10 @@
    and, when either is free, from the base fit's own grid of them (its starts, not starts around
    the candidate's ground), and, for an effect that a fit lacking it bends parameters to mimic
    (``Effect.bends``), also from the candidate with those back where the base fit started
-   (:func:`final_refit`); the lowest training cost is kept. Repeat for up to ``max_effects``.
+   (:func:`final_refit`); the lowest training cost is kept. The named value is that refit's,
+   and it must be physical together with its 95 % interval: an effect whose interval reaches
+   outside its physical range is reported as a proxy instead, and the next candidate is checked
+   (:func:`name_one`). Repeat for up to ``max_effects``.
 """
 from __future__ import annotations
 
@@ -693,6 +700,58 @@ def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: 
         pending = [replace(c, refit_without=True, effect_share=share) if c.name == top.name else c for c in pending]
 
 
+def name_one(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: DiagnoseConfig,
+             library: EffectLibrary, refit_without: Callable[[Candidate], tuple[Baseline, float]],
+             look: Callable[[list[Candidate], Baseline], tuple[Candidate | None, FitResult | None, bool]],
+             refit: Callable[[Candidate], FitResult],
+             partner: Callable[[Candidate, list[Candidate], Baseline],
+                               tuple[list[Candidate], FitResult | None, bool]] | None = None,
+             progress: Callable[[str], None] = lambda m: None
+             ) -> tuple[list[Candidate], FitResult | None, list[Candidate], list[Candidate]]:
+    """One round's naming: the candidates named (none, one, or a pair) with the refit that names
+    them, all candidates ranked, and the proxies, best first.
+
+    :func:`choose` picks the candidate (``refit_without`` as there) and ``refit`` refits the
+    model with it on the whole runs (:func:`final_refit`); when it picks none, ``look`` gives
+    the second look (:func:`second_look`: the candidate with its whole runs' evidence, which
+    replaces its screening's, that refit, and whether it is named), and when that names
+    nothing either, ``partner`` (if given) looks for the effect missing with it
+    (:func:`partnered_look`: the pair with its evidence, which replaces theirs, the pair's
+    refit, and whether both are named). A single named value is the refit's, and it must be
+    physical together with its 95 % interval
+    (:meth:`sysid.discrepancy.effects.Effect.implausible`): a candidate whose refit's interval
+    reaches outside its effect's physical range is set aside as a proxy (with the refit's value
+    and the reason), its refit discarded, and the choice made again without it.
+    """
+    rejected: list[Candidate] = []
+    while True:
+        best, candidates, proxies, baseline = choose(candidates, baseline, n, config, refit_without)
+        if best is None:
+            looked, final, named_now = look(candidates, baseline)
+            if looked is not None and not named_now and partner is not None:
+                pair, pair_fit, pair_named = partner(looked, candidates, baseline)
+                evidence = {c.name: c for c in [looked, *pair]}
+                candidates = [evidence.get(c.name, c) for c in candidates]
+                if pair_named:
+                    return pair, pair_fit, rank(candidates + rejected), proxies + rejected
+            elif looked is not None:
+                candidates = [looked if c.name == looked.name else c for c in candidates]
+            best = looked if named_now else None
+        else:
+            final = refit(best)
+        if best is None:
+            return [], None, rank(candidates + rejected), proxies + rejected
+        effect = library[best.name]
+        interval = next((r for r in final.report if r.name == effect.parameter.name), None)
+        value = final.params.value(effect.parameter.name)
+        why = effect.implausible(value, (interval.ci_low, interval.ci_high) if interval else None)
+        if why is None:
+            return [best], final, rank(candidates + rejected), proxies + rejected
+        progress(f"{best.name} refitted: {why}; not named")
+        rejected.append(replace(best, value=value, implausible=why))
+        candidates = [c for c in candidates if c.name != best.name]
+
+
 #: Perturbations (count, and size in unit coordinates: 0.01 % of each free parameter's range, a
 #: hundredth of the fit's finite-difference step) over which :func:`effect_share` takes its
 #: least share. Near the optimum of this simulator's smooth soft ground they change the held-out
@@ -949,6 +1008,78 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
     return looked, fit, named
 
 
+def partnered_look(looked: Candidate, candidates: Sequence[Candidate], baseline: Baseline,
+                   fit_set: Sequence[Run], holdout: Sequence[Run], weights: Weights, config: DiagnoseConfig,
+                   library: EffectLibrary, progress: Callable[[str], None] = lambda m: None
+                   ) -> tuple[list[Candidate], FitResult | None, bool]:
+    """When the second look (:func:`second_look`) names nothing: its candidate ``looked``,
+    refitted on the whole runs, with a partner. Each other candidate of a physical value resolved
+    from none whose screening the training runs support (``dBIC < bic_threshold``) is added at
+    its screened value to ``looked``'s model and both refitted on the whole runs together; the
+    pair of lowest training cost is judged by what naming asks of one effect, for the pair:
+    the held-out cost down by ``min_improvement`` against the baseline joined with the whole
+    runs' refit of the model without either effect, every held-out run improved, the training
+    runs' ``dBIC < bic_threshold`` against that refit (both effects' parameters charged), and
+    for each effect a physical value with its 95 % interval, resolved from none, carrying
+    ``min_improvement`` of the held-out cost itself (:func:`effect_share`, the other effect on).
+
+    Returns:
+        the pair with its whole runs' evidence (empty when ``looked`` has no partner), that
+        refit, and whether both are named.
+
+    Physical reason: two effects missing together can each bend the other's refit so far that
+    neither alone predicts a run no fit has seen. On this simulator's runs with a 0.02 rad
+    backlash and twice the lateral ground friction hidden together (the confusion matrix's pair,
+    development seed 36; missed on every seed set), the backlash cut the training cost most
+    (dBIC -369, 0.0156 rad on the whole runs) but raised the held-out cost by 5 %: the fit bent
+    the ground's friction and the motor to mimic the anisotropy it lacked; the anisotropy's own
+    screening stopped at 1.23, its lag of the head path partly taken by the backlash's lag of
+    the joints. Refitted together from there, both come out at the truth (0.0200 rad, 2.002) and
+    the held-out cost vanishes. An effect that is not there adds no share to a pair.
+    """
+    effect = library[looked.name]
+    partners = [c for c in candidates if c.name != looked.name and c.implausible is None and c.unresolved is None
+                and c.delta_bic < config.bic_threshold]
+    if not partners:
+        return [], None, False
+    progress(f"{looked.name} alone does not predict the held-out runs; refitting it on the whole runs with each of "
+             f"{', '.join(c.name for c in partners)}")
+    refits = run_together([unless_diverged(_screen_refit(library.transform(looked.params, {c.name: c.value}), fit_set,
+                                                         holdout, config.final_iterations, weights, whole_runs=True))
+                           for c in partners])
+    tried = [(r, c) for r, c in zip(refits, partners) if r is not None]
+    if not tried:
+        return [], None, False
+    (fit, hold), partner = min(tried, key=lambda t: t[0][0].cost)
+    pair = [replace(looked, params=fit.params), replace(partner, params=fit.params)]
+    effects = [effect, library[partner.name]]
+    neither = fit.params.with_values(**{e.parameter.name: e.parameter.value for e in effects}).with_frozen(
+        [e.parameter.name for e in effects])
+    (without, hold_without), *shares = run_together(
+        [_screen_refit(neither, fit_set, holdout, config.final_iterations, weights, whole_runs=True)]
+        + [effect_share(c, e, holdout, weights) for c, e in zip(pair, effects)])
+    joined = baseline.joined(Baseline(np.inf, hold_without))
+    n = fit.residual_count
+    dbic = n * np.log(max(fit.cost, 1e-300) / max(without.cost, 1e-300)) + sum(c.added for c in pair) * np.log(n)
+    intervals = {r.name: (r.ci_low, r.ci_high) for r in fit.report}
+    evidence = dict(held_out_improvement=1.0 - float(hold.sum()) / float(joined.held_out_runs.sum()),
+                    runs_improved=float(np.mean(hold < joined.held_out_runs)), delta_bic=float(dbic),
+                    train_cost=2.0 * fit.cost, held_out_cost=float(hold.sum()), held_out_runs=hold,
+                    refit_without=True, whole_runs=True)
+    values = [fit.params.value(e.parameter.name) for e in effects]
+    pair = [replace(c, value=v, effect_share=share, implausible=e.implausible(v, intervals.get(e.parameter.name)),
+                    unresolved=e.unresolved(v), **evidence)
+            for c, e, v, share in zip(pair, effects, values, shares)]
+    named = significant(pair[0], config) and all(c.implausible is None and c.unresolved is None
+                                                 and c.effect_share >= config.min_improvement for c in pair)
+    progress(f"{looked.name} with {partner.name} on the whole runs: "
+             + ", ".join(f"{e.parameter.name} = {c.value:.4g} {e.parameter.unit} (own share {100 * c.effect_share:.0f} %)"
+                         for c, e in zip(pair, effects))
+             + f", held-out cost {-100 * pair[0].held_out_improvement:+.0f} %, dBIC {dbic:.0f}: "
+             + ("both named" if named else "not named"))
+    return pair, fit, named
+
+
 def _held_out_costs(params: ModelParameters, holdout: Sequence[Run], weights: Weights) -> Steps[np.ndarray]:
     """The cost of each held-out run (whole runs) at ``params`` (a computation)."""
     held = Objective(list(holdout), params, weights)
@@ -1101,27 +1232,37 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
                 effect_share(c, effect, holdout, weights)])
             return Baseline(2.0 * alone.cost, hold), share
 
-        best, candidates, proxies, baseline = choose(candidates, baseline, n, config, refit_without)
+        def look(candidates: list[Candidate], baseline: Baseline, round_: int = round_
+                 ) -> tuple[Candidate | None, FitResult | None, bool]:
+            return second_look(candidates, baseline, current, start, fit_set, holdout, weights, config, library,
+                               lambda message: progress(f"round {round_ + 1}: {message}"))
+
+        def refit(best: Candidate, round_: int = round_) -> FitResult:
+            progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
+            return final_refit(best.params, current, start, fit_set, weights, config, library[best.name])
+
+        def partner(looked: Candidate, candidates: list[Candidate], baseline: Baseline, round_: int = round_
+                    ) -> tuple[list[Candidate], FitResult | None, bool]:
+            return partnered_look(looked, candidates, baseline, fit_set, holdout, weights, config, library,
+                                  lambda message: progress(f"round {round_ + 1}: {message}"))
+
+        found, final, candidates, proxies = name_one(
+            candidates, baseline, n, config, library, refit_without, look, refit,
+            partner if len(named) + 2 <= config.max_effects else None,
+            lambda message, round_=round_: progress(f"round {round_ + 1}: {message}"))
         known = {s.name for s in result.structural}
         result.structural += [StructuralDifference(c.name, c.value, c.unit, c.implausible, c.held_out_improvement,
                                                    round_ + 1) for c in proxies if c.name not in known]
-        if best is None:
-            looked, final, named_now = second_look(candidates, baseline, current, start, fit_set, holdout, weights,
-                                                   config, library,
-                                                   lambda message, round_=round_: progress(f"round {round_ + 1}: {message}"))
-            if looked is not None:  # its whole runs' evidence replaces its screening's, named or not
-                candidates = [looked if c.name == looked.name else c for c in candidates]
-            best = looked if named_now else None
-        else:
-            progress(f"round {round_ + 1}: {best.name} explains the gap; refitting with it")
-            final = final_refit(best.params, current, start, fit_set, weights, config, library[best.name])
         result.rounds.append(candidates)
-        if best is None:
+        if not found:
             break
         result.fits.append(final)
         current = final.params
-        named.append(best)
-        remaining.remove(best.name)
+        named += found
+        for c in found:
+            remaining.remove(c.name)
+        if len(named) >= config.max_effects:
+            break
     # each named effect's value and interval are the final model's: a later round's refit moves
     # the parameters of the effects named before it too (the model a user gets is the last one)
     result.effects = [_named(c, library[c.name], current, result.fits[-1]) for c in named]
