@@ -351,6 +351,11 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #: - The elliptic cone's Newton in the contact rows, the pyramid's system through the
 #:   velocities updated row by row (CHANGELOG "sixty-third stop"): the last bits of every
 #:   soft-law rollout.
+#: - A named effect's 95 % interval must be physical too (``Effect.implausible(value, ci95)``,
+#:   ``diagnose.name_one``), and when the second look names nothing, its candidate is refitted
+#:   on the whole runs with each supported partner and the best pair named, both or neither
+#:   (``diagnose.partnered_look``; CHANGELOG "sixty-fourth stop"): every diagnosis in which a
+#:   named effect's interval reached outside its range, or a second look named nothing.
 #: The confusion matrix's results files (every engine, law and configuration).
 MATRIX_FILES = ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint",
                 "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff")
@@ -450,6 +455,7 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-12-05T08:14", "d037118", "figures from seeds 34-36, which mechanisms were found on", MATRIX_FILES),
     ("2026-12-05T10:14", "9d0acfc", "the soft laws' solves in the rows and row by row (soft laws' last bits)",
      SOFT_LAW_FILES),
+    ("2026-12-05T12:30", "df5f652", "a named effect's interval physical, effects named as a pair", DIAGNOSIS_FILES),
 )
 
 
