@@ -28,9 +28,9 @@ DURATION_S = 3.0
 HEAD_FLOOR_M = 0.005
 
 
-def diagnosed(effect: str | None, *also: str, seed: int = SEED):
+def diagnosed(effect: str | None, *also: str, seed: int = SEED, progress=lambda message: None):
     """The diagnosis of runs with ``effect`` (and the effects ``also``) hidden, looking for as many;
-    ``seed`` draws the runs' starts and noise."""
+    ``seed`` draws the runs' starts and noise, ``progress`` gets the workflow's messages."""
     truth = ModelParameters.nominal().with_values(**ERROR)
     if effect is not None:
         truth = LIBRARY.transform(truth, {e: MAGNITUDES[e] for e in (effect, *also)}, frozen=True)
@@ -41,7 +41,7 @@ def diagnosed(effect: str | None, *also: str, seed: int = SEED):
              for i, f in enumerate((0.5, 0.65, 0.5))]
     runs = [record(sim, p, rng, model) for p in plans]
     return diagnose(runs[:2], runs[2:], params=ModelParameters.nominal().with_frozen(free=FREE),
-                    config=DiagnoseConfig(max_effects=1 + len(also)))
+                    config=DiagnoseConfig(max_effects=1 + len(also)), progress=progress)
 
 
 @pytest.mark.slow
@@ -125,3 +125,29 @@ def test_two_effects_that_neither_explains_alone_are_named_as_a_pair():
         assert e.ci95[0] <= MAGNITUDES[e.name] <= e.ci95[1]
         assert e.value == pytest.approx(MAGNITUDES[e.name], rel=0.02)
     assert d.gap_after.head_final_error_m < 0.1 * d.gap_before.head_final_error_m
+
+
+@pytest.mark.slow
+def test_a_candidate_whose_screening_diverges_is_left_out_and_the_others_are_screened(monkeypatch):
+    """A candidate whose screening refit no simulation follows (a payload on a ground fitted
+    without it can sink the head through a soft ground) is reported as not screened, is not a
+    candidate of that round, and the diagnosis goes on: the effect hidden is still named."""
+    import sysid.discrepancy.diagnose as diagnose_module
+    from integrators.simulator import SimulationDiverged
+    screen_refit = diagnose_module._screen_refit
+
+    def payload_sinks(start, *args, **kwargs):
+        if "link_mass_error" in start.free_names:
+            raise SimulationDiverged("t = 0.4 s: the head sank 3 cm into the ground")
+        return (yield from screen_refit(start, *args, **kwargs))
+
+    monkeypatch.setattr(diagnose_module, "_screen_refit", payload_sinks)
+    messages: list[str] = []
+    d = diagnosed("actuator_delay", progress=messages.append)
+    assert any("link_mass_error: its screening's simulation diverged (t = 0.4 s: the head sank 3 cm" in m
+               and m.endswith("not screened") for m in messages)
+    screened = {c.name for c in d.rounds[0]}
+    assert "link_mass_error" not in screened
+    assert screened == {e.name for e in LIBRARY} - {"link_mass_error"}
+    assert [e.name for e in d.effects] == ["actuator_delay"]
+    assert d.effects[0].value == pytest.approx(MAGNITUDES["actuator_delay"], rel=0.1)
