@@ -939,6 +939,22 @@ def final_refit(candidate: ModelParameters, current: ModelParameters, origin: Mo
     return min(fits, key=lambda fit: fit.cost)
 
 
+def whole_run_evidence(fit: FitResult, hold: np.ndarray, without: FitResult, hold_without: np.ndarray,
+                       baseline: Baseline, added: int) -> dict:
+    """The evidence fields of a :class:`Candidate` measured on whole-run refits: ``fit`` (the
+    model with the effect or effects, ``hold`` its held-out cost per run) against ``without``
+    (the same model refitted without them, ``hold_without``): the held-out improvement and the
+    share of held-out runs improved against ``baseline`` joined with ``without``, and the
+    training runs' dBIC against ``without`` with ``added`` parameters charged."""
+    joined = baseline.joined(Baseline(np.inf, hold_without))
+    n = fit.residual_count
+    dbic = n * np.log(max(fit.cost, 1e-300) / max(without.cost, 1e-300)) + added * np.log(n)
+    return dict(held_out_improvement=1.0 - float(hold.sum()) / float(joined.held_out_runs.sum()),
+                runs_improved=float(np.mean(hold < joined.held_out_runs)), delta_bic=float(dbic),
+                train_cost=2.0 * fit.cost, held_out_cost=float(hold.sum()), held_out_runs=hold,
+                refit_without=True, whole_runs=True)
+
+
 def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: ModelParameters,
                 origin: ModelParameters, fit_set: Sequence[Run], holdout: Sequence[Run], weights: Weights,
                 config: DiagnoseConfig, library: EffectLibrary, progress: Callable[[str], None] = lambda m: None
@@ -992,18 +1008,12 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
         _screen_refit(switched_off(on, effect), fit_set, holdout, config.final_iterations, weights, whole_runs=True),
         _held_out_costs(fit.params, holdout, weights),
         effect_share(on, effect, holdout, weights)])
-    joined = baseline.joined(Baseline(np.inf, hold_without))
-    n = fit.residual_count
-    dbic = n * np.log(max(fit.cost, 1e-300) / max(without.cost, 1e-300)) + c.added * np.log(n)
-    looked = replace(on, held_out_improvement=1.0 - float(hold.sum()) / float(joined.held_out_runs.sum()),
-                     runs_improved=float(np.mean(hold < joined.held_out_runs)), delta_bic=float(dbic),
-                     train_cost=2.0 * fit.cost, held_out_cost=float(hold.sum()), held_out_runs=hold,
-                     refit_without=True, implausible=effect.implausible(value), effect_share=share, whole_runs=True,
-                     unresolved=effect.unresolved(value))
+    looked = replace(on, **whole_run_evidence(fit, hold, without, hold_without, baseline, c.added),
+                     implausible=effect.implausible(value), effect_share=share, unresolved=effect.unresolved(value))
     named = (looked.implausible is None and looked.unresolved is None and significant(looked, config)
              and share >= config.min_improvement)
     progress(f"{c.name} on the whole runs: {effect.parameter.name} = {value:.4g} {effect.parameter.unit}, held-out cost "
-             f"{-100 * looked.held_out_improvement:+.0f} %, its own share {100 * share:.0f} %, dBIC {dbic:.0f}: "
+             f"{-100 * looked.held_out_improvement:+.0f} %, its own share {100 * share:.0f} %, dBIC {looked.delta_bic:.0f}: "
              + ("named" if named else "not named"))
     return looked, fit, named
 
@@ -1058,14 +1068,8 @@ def partnered_look(looked: Candidate, candidates: Sequence[Candidate], baseline:
     (without, hold_without), *shares = run_together(
         [_screen_refit(neither, fit_set, holdout, config.final_iterations, weights, whole_runs=True)]
         + [effect_share(c, e, holdout, weights) for c, e in zip(pair, effects)])
-    joined = baseline.joined(Baseline(np.inf, hold_without))
-    n = fit.residual_count
-    dbic = n * np.log(max(fit.cost, 1e-300) / max(without.cost, 1e-300)) + sum(c.added for c in pair) * np.log(n)
     intervals = {r.name: (r.ci_low, r.ci_high) for r in fit.report}
-    evidence = dict(held_out_improvement=1.0 - float(hold.sum()) / float(joined.held_out_runs.sum()),
-                    runs_improved=float(np.mean(hold < joined.held_out_runs)), delta_bic=float(dbic),
-                    train_cost=2.0 * fit.cost, held_out_cost=float(hold.sum()), held_out_runs=hold,
-                    refit_without=True, whole_runs=True)
+    evidence = whole_run_evidence(fit, hold, without, hold_without, baseline, sum(c.added for c in pair))
     values = [fit.params.value(e.parameter.name) for e in effects]
     pair = [replace(c, value=v, effect_share=share, implausible=e.implausible(v, intervals.get(e.parameter.name)),
                     unresolved=e.unresolved(v), **evidence)
@@ -1075,7 +1079,7 @@ def partnered_look(looked: Candidate, candidates: Sequence[Candidate], baseline:
     progress(f"{looked.name} with {partner.name} on the whole runs: "
              + ", ".join(f"{e.parameter.name} = {c.value:.4g} {e.parameter.unit} (own share {100 * c.effect_share:.0f} %)"
                          for c, e in zip(pair, effects))
-             + f", held-out cost {-100 * pair[0].held_out_improvement:+.0f} %, dBIC {dbic:.0f}: "
+             + f", held-out cost {-100 * pair[0].held_out_improvement:+.0f} %, dBIC {pair[0].delta_bic:.0f}: "
              + ("both named" if named else "not named"))
     return pair, fit, named
 
