@@ -155,12 +155,56 @@ def test_an_interval_reaching_outside_the_physical_range_away_from_none_is_impla
         assert effect.implausible(v, (0.9 * v, 1.1 * v) if v > 0 else (1.1 * v, 0.9 * v)) is None, effect.name
 
 
-def refit_at(name: str, value: float, ci95: tuple[float, float]) -> SimpleNamespace:
-    """Stands in for a final refit (:func:`final_refit`): the model with the effect at ``value``
-    and that parameter's report line with the 95 % interval ``ci95``."""
+def refit_at(name: str, value: float, ci95: tuple[float, float], cost: float = 1_000.0) -> SimpleNamespace:
+    """Stands in for a final refit (:func:`final_refit`): the model with the effect at ``value``,
+    that parameter's report line with the 95 % interval ``ci95``, and the training cost ``cost``
+    (half the sum of squares, over ``N`` residuals)."""
     p = LIBRARY[name].parameter
-    return SimpleNamespace(params=LIBRARY.transform(ModelParameters.nominal(), {name: value}),
+    return SimpleNamespace(params=LIBRARY.transform(ModelParameters.nominal(), {name: value}), cost=cost,
+                           residual_count=N,
                            report=[ParameterReport(p.name, p.unit, p.value, value, value, *ci95, False, True, "")])
+
+
+@pytest.mark.parametrize("limit_cost, named", [(1_232.0, "link_mass_error"), (800.0, "torque_saturation")])
+def test_of_two_candidates_that_pass_on_their_screenings_the_one_the_whole_runs_support_more_is_named(
+        limit_cost, named):
+    """The first round of development seed 32's pair (twice the lateral ground friction and a
+    0.8 kg payload hidden) under OpenBLAS's SkylakeX kernels: a torque limit that was not hidden
+    cuts the held-out cost most on its screening (49 %), the payload next (44 %), and each passes
+    every check. Both are refitted on the whole runs, and the one of lower training cost there
+    is named (1232 against 856: the payload), whichever screened better."""
+    limit, payload = "torque_saturation", "link_mass_error"
+    fits = {limit: refit_at(limit, 2.82, (2.7, 2.9), cost=limit_cost), payload: refit_at(payload, 0.6, (0.5, 0.7), 856.0)}
+    refitted: list[str] = []
+
+    def refit(c: Candidate):
+        refitted.append(c.name)
+        return fits[c.name]
+
+    def look(cands, baseline):
+        raise AssertionError("no second look when a candidate is named")
+
+    cands = [candidate(limit, 2_000.0, [17.0, 17.0, 17.0]), candidate(payload, 1_700.0, [18.7, 18.7, 18.7])]
+    shares = RefitWithout({limit: BASELINE, payload: BASELINE})
+    found, final, ranked, _ = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY, shares, look, refit)
+    assert shares.calls == [limit, payload]          # the runner-up carries its own share too
+    assert refitted == [limit, payload]
+    assert [c.name for c in found] == [named] and final is fits[named]
+    assert {c.name for c in ranked} == {limit, payload}
+
+
+def test_a_runner_up_whose_effect_carries_too_little_itself_is_not_refitted():
+    limit, payload = "torque_saturation", "link_mass_error"
+    refitted: list[str] = []
+
+    def refit(c: Candidate):
+        refitted.append(c.name)
+        return refit_at(c.name, 2.82, (2.7, 2.9))
+
+    cands = [candidate(limit, 2_000.0, [17.0, 17.0, 17.0]), candidate(payload, 1_700.0, [18.7, 18.7, 18.7])]
+    found, _, _, _ = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY,
+                              RefitWithout({limit: BASELINE, payload: BASELINE}, shares={payload: 0.1}), None, refit)
+    assert refitted == [limit] and [c.name for c in found] == [limit]
 
 
 def test_a_named_effect_whose_refit_interval_reaches_outside_its_range_is_a_proxy_and_the_next_is_named():
