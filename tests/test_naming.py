@@ -193,6 +193,22 @@ def test_of_two_candidates_that_pass_on_their_screenings_the_one_the_whole_runs_
     assert {c.name for c in ranked} == {limit, payload}
 
 
+def test_a_runner_up_that_the_training_runs_support_less_on_its_screening_is_not_contested():
+    """Both screenings' evidence favours the torque limit (the larger held-out cut and the lower
+    training cost): it is named without refitting the payload."""
+    limit, payload = "torque_saturation", "link_mass_error"
+    refitted: list[str] = []
+
+    def refit(c: Candidate):
+        refitted.append(c.name)
+        return refit_at(c.name, 2.82, (2.7, 2.9))
+
+    cands = [candidate(limit, 1_700.0, [17.0, 17.0, 17.0]), candidate(payload, 2_000.0, [18.7, 18.7, 18.7])]
+    shares = RefitWithout({limit: BASELINE, payload: BASELINE})
+    found, _, _, _ = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY, shares, None, refit)
+    assert refitted == [limit] and shares.calls == [limit] and [c.name for c in found] == [limit]
+
+
 def test_a_runner_up_whose_effect_carries_too_little_itself_is_not_refitted():
     limit, payload = "torque_saturation", "link_mass_error"
     refitted: list[str] = []

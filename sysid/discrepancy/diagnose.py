@@ -769,17 +769,20 @@ def name_one(candidates: Sequence[Candidate], baseline: Baseline, n: int, config
 def contested(best: Candidate, candidates: Sequence[Candidate], baseline: Baseline, n: int, config: DiagnoseConfig,
               refit_without: Callable[[Candidate], tuple[Baseline, float]], refit: Callable[[Candidate], FitResult],
               progress: Callable[[str], None] = lambda m: None) -> tuple[Candidate, FitResult]:
-    """The candidate to name of ``best`` (:func:`choose`'s pick) and its runner-up (what
-    :func:`choose` picks with ``best`` left out: significant, physical, resolved, carrying its
-    own share), with its whole runs' refit (``refit``): of the two, the one the training runs
-    support more once both are refitted on the whole runs, as naming does it (the lower BIC:
-    the refit's training cost, each added parameter charged ``log n``); ``best`` alone when
-    there is no runner-up.
+    """The candidate to name of ``best`` (:func:`choose`'s pick, the best held-out cut on its
+    screening) and a runner-up that the training runs support more on its screening (lower
+    BIC; of those, what :func:`choose` picks with ``best`` left out: significant, physical,
+    resolved, carrying its own share), with its whole runs' refit (``refit``): of the two, the
+    one the training runs support more once both are refitted on the whole runs, as naming does
+    it (the lower BIC: the refit's training cost, each added parameter charged ``log n``);
+    ``best`` alone when there is no such runner-up.
 
-    Both have passed the held-out bar on their screenings, and a screening
-    (``screen_iterations`` on the runs' first :data:`SCREEN_HORIZON_S`) ranks them by margins
-    that the last bits move; the whole-run refits are the better evidence, and of it the
-    training runs are the larger part (the held-out runs judged both already).
+    Both have passed the held-out bar on their screenings, which disagree on the two: the
+    held-out runs favour one, the training runs the other. A screening (``screen_iterations``
+    on the runs' first :data:`SCREEN_HORIZON_S`) cannot settle that, as its margins move with
+    the last bits; the whole-run refits can, and of their evidence the training runs are the
+    larger part (the held-out runs judged both already). When both screenings' evidence
+    favours ``best``, it is named without a contest.
 
     Physical reason: two effects hidden together can each let a third one pass, each
     screening's refit bending the free parameters to mimic the effects it lacks. On this
@@ -792,18 +795,21 @@ def contested(best: Candidate, candidates: Sequence[Candidate], baseline: Baseli
     laterally stickier robot demands, which mimics both effects over one run, but not over
     every training run (whole runs' training cost 1232 against the payload's 856).
     """
-    others = [c for c in candidates if c.name != best.name]
+    def bic(c: Candidate, fit: FitResult | None = None) -> float:
+        """On the screening's training runs (``n`` residuals), or on the whole runs' ``fit``."""
+        m, cost = (n, c.train_cost) if fit is None else (fit.residual_count, fit.cost)
+        return m * np.log(max(cost, 1e-300)) + c.added * np.log(m)
+
+    others = [c for c in candidates if c.name != best.name and bic(c) < bic(best)]
     runner_up = choose(others, baseline, n, config, refit_without)[0] if others else None
     final = refit(best)
     if runner_up is None:
         return best, final
     rival = refit(runner_up)
 
-    def bic(c: Candidate, fit: FitResult) -> float:
-        return fit.residual_count * np.log(max(fit.cost, 1e-300)) + c.added * np.log(fit.residual_count)
-
     keep = bic(best, final) <= bic(runner_up, rival)
-    progress(f"{best.name} and {runner_up.name} both pass on their screenings; refitted on the whole runs, "
+    progress(f"{best.name} and {runner_up.name} both pass on their screenings, the held-out runs favouring the "
+             f"first, the training runs the second; refitted on the whole runs, "
              f"training cost {final.cost:.4g} and {rival.cost:.4g}: {(best if keep else runner_up).name}")
     return (best, final) if keep else (runner_up, rival)
 
