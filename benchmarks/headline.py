@@ -456,6 +456,7 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-12-05T10:14", "9d0acfc", "the soft laws' solves in the rows and row by row (soft laws' last bits)",
      SOFT_LAW_FILES),
     ("2026-12-05T12:30", "df5f652", "a named effect's interval physical, effects named as a pair", DIAGNOSIS_FILES),
+    ("2026-12-05T16:49", "55e38f8", "of two candidates passing their screenings, the whole runs' choice", DIAGNOSIS_FILES),
 )
 
 
