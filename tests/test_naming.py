@@ -165,6 +165,23 @@ def refit_at(name: str, value: float, ci95: tuple[float, float], cost: float = 1
                            report=[ParameterReport(p.name, p.unit, p.value, value, value, *ci95, False, True, "")])
 
 
+class Refits:
+    """Stands in for the whole runs' refit of a candidate (``refit`` of :func:`name_one`): the
+    given fit per candidate name (``refit_at`` of a torque limit at 2.82 N m when none is
+    given), the names refitted recorded."""
+
+    def __init__(self, fits: dict[str, SimpleNamespace] | None = None):
+        self.fits, self.calls = fits or {}, []
+
+    def __call__(self, c: Candidate) -> SimpleNamespace:
+        self.calls.append(c.name)
+        return self.fits.get(c.name) or refit_at(c.name, 2.82, (2.7, 2.9))
+
+
+def no_look(cands, baseline):
+    raise AssertionError("no second look when a candidate is named")
+
+
 @pytest.mark.parametrize("limit_cost, named", [(1_232.0, "link_mass_error"), (800.0, "torque_saturation")])
 def test_of_two_candidates_that_pass_on_their_screenings_the_one_the_whole_runs_support_more_is_named(
         limit_cost, named):
@@ -174,22 +191,14 @@ def test_of_two_candidates_that_pass_on_their_screenings_the_one_the_whole_runs_
     every check. Both are refitted on the whole runs, and the one of lower training cost there
     is named (1232 against 856: the payload), whichever screened better."""
     limit, payload = "torque_saturation", "link_mass_error"
-    fits = {limit: refit_at(limit, 2.82, (2.7, 2.9), cost=limit_cost), payload: refit_at(payload, 0.6, (0.5, 0.7), 856.0)}
-    refitted: list[str] = []
-
-    def refit(c: Candidate):
-        refitted.append(c.name)
-        return fits[c.name]
-
-    def look(cands, baseline):
-        raise AssertionError("no second look when a candidate is named")
-
+    refit = Refits({limit: refit_at(limit, 2.82, (2.7, 2.9), cost=limit_cost),
+                    payload: refit_at(payload, 0.6, (0.5, 0.7), 856.0)})
     cands = [candidate(limit, 2_000.0, [17.0, 17.0, 17.0]), candidate(payload, 1_700.0, [18.7, 18.7, 18.7])]
     shares = RefitWithout({limit: BASELINE, payload: BASELINE})
-    found, final, ranked, _ = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY, shares, look, refit)
+    found, final, ranked, _ = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY, shares, no_look, refit)
     assert shares.calls == [limit, payload]          # the runner-up carries its own share too
-    assert refitted == [limit, payload]
-    assert [c.name for c in found] == [named] and final is fits[named]
+    assert refit.calls == [limit, payload]
+    assert [c.name for c in found] == [named] and final is refit.fits[named]
     assert {c.name for c in ranked} == {limit, payload}
 
 
@@ -197,49 +206,30 @@ def test_a_runner_up_that_the_training_runs_support_less_on_its_screening_is_not
     """Both screenings' evidence favours the torque limit (the larger held-out cut and the lower
     training cost): it is named without refitting the payload."""
     limit, payload = "torque_saturation", "link_mass_error"
-    refitted: list[str] = []
-
-    def refit(c: Candidate):
-        refitted.append(c.name)
-        return refit_at(c.name, 2.82, (2.7, 2.9))
-
+    refit = Refits()
     cands = [candidate(limit, 1_700.0, [17.0, 17.0, 17.0]), candidate(payload, 2_000.0, [18.7, 18.7, 18.7])]
     shares = RefitWithout({limit: BASELINE, payload: BASELINE})
-    found, _, _, _ = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY, shares, None, refit)
-    assert refitted == [limit] and shares.calls == [limit] and [c.name for c in found] == [limit]
+    found, _, _, _ = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY, shares, no_look, refit)
+    assert refit.calls == [limit] and shares.calls == [limit] and [c.name for c in found] == [limit]
 
 
 def test_a_runner_up_whose_effect_carries_too_little_itself_is_not_refitted():
     limit, payload = "torque_saturation", "link_mass_error"
-    refitted: list[str] = []
-
-    def refit(c: Candidate):
-        refitted.append(c.name)
-        return refit_at(c.name, 2.82, (2.7, 2.9))
-
+    refit = Refits()
     cands = [candidate(limit, 2_000.0, [17.0, 17.0, 17.0]), candidate(payload, 1_700.0, [18.7, 18.7, 18.7])]
     found, _, _, _ = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY,
-                              RefitWithout({limit: BASELINE, payload: BASELINE}, shares={payload: 0.1}), None, refit)
-    assert refitted == [limit] and [c.name for c in found] == [limit]
+                              RefitWithout({limit: BASELINE, payload: BASELINE}, shares={payload: 0.1}), no_look, refit)
+    assert refit.calls == [limit] and [c.name for c in found] == [limit]
 
 
 def test_a_named_effect_whose_refit_interval_reaches_outside_its_range_is_a_proxy_and_the_next_is_named():
     aniso, friction = "anisotropic_ground_friction", "joint_coulomb_friction"
-    fits = {aniso: refit_at(aniso, 0.5312, (0.3869, 0.6755)), friction: refit_at(friction, 0.3, (0.27, 0.33))}
-    refitted: list[str] = []
-
-    def refit(c: Candidate):
-        refitted.append(c.name)
-        return fits[c.name]
-
-    def look(cands, baseline):
-        raise AssertionError("no second look when a candidate is named")
-
+    refit = Refits({aniso: refit_at(aniso, 0.5312, (0.3869, 0.6755)), friction: refit_at(friction, 0.3, (0.27, 0.33))})
     cands = [candidate(aniso, 2_000.0, [20.0, 20.0, 20.0]), candidate(friction, 3_000.0, [40.0, 40.0, 40.0])]
     found, final, ranked, proxies = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY,
-                                             RefitWithout({aniso: BASELINE, friction: BASELINE}), look, refit)
-    assert refitted == [aniso, friction]
-    assert [c.name for c in found] == [friction] and final is fits[friction]
+                                             RefitWithout({aniso: BASELINE, friction: BASELINE}), no_look, refit)
+    assert refit.calls == [aniso, friction]
+    assert [c.name for c in found] == [friction] and final is refit.fits[friction]
     assert [p.name for p in proxies] == [aniso] and proxies[0].value == 0.5312
     assert "[0.3869, 0.6755]" in proxies[0].implausible
     assert {c.name for c in ranked} == {aniso, friction}          # the report still shows both
