@@ -43,7 +43,8 @@
    A candidate that would be named but whose fitted value is no physical value of its effect
    (:meth:`sysid.discrepancy.effects.Effect.implausible`) is a proxy for a difference of another structure:
    it is reported in ``structural`` and the verdict, not named, and the next candidate is checked.
-   When a second candidate would pass every check with the first left out, both are refitted on
+   When a second candidate would pass every check with the first left out and the training runs
+   support it more on its screening (the held-out runs favouring the first), both are refitted on
    the whole training runs as naming does it, and the one the training runs support more there
    (lower BIC) is named (:func:`contested`: with two effects missing, a third can pass on a
    screening that mimics both, by margins the last bits move).
@@ -717,9 +718,9 @@ def name_one(candidates: Sequence[Candidate], baseline: Baseline, n: int, config
 
     :func:`choose` picks the candidate (``refit_without`` as there) and ``refit`` refits the
     model with it on the whole runs (:func:`final_refit`). When :func:`choose` would pick
-    another candidate with that one left out (a runner-up that passes every check of its own),
-    both are refitted on the whole runs and the one the training runs support more is taken
-    (:func:`contested`). When it picks none, ``look`` gives
+    another candidate with that one left out (a runner-up that passes every check of its own)
+    and the training runs support it more on its screening (lower dBIC), both are refitted on
+    the whole runs and the one the training runs support more there is taken (:func:`contested`). When it picks none, ``look`` gives
     the second look (:func:`second_look`: the candidate with its whole runs' evidence, which
     replaces its screening's, that refit, and whether it is named), and when that names
     nothing either, ``partner`` (if given) looks for the effect missing with it
@@ -795,12 +796,13 @@ def contested(best: Candidate, candidates: Sequence[Candidate], baseline: Baseli
     laterally stickier robot demands, which mimics both effects over one run, but not over
     every training run (whole runs' training cost 1232 against the payload's 856).
     """
-    def bic(c: Candidate, fit: FitResult | None = None) -> float:
-        """On the screening's training runs (``n`` residuals), or on the whole runs' ``fit``."""
-        m, cost = (n, c.train_cost) if fit is None else (fit.residual_count, fit.cost)
-        return m * np.log(max(cost, 1e-300)) + c.added * np.log(m)
+    def bic(c: Candidate, fit: FitResult) -> float:
+        """On the whole runs' ``fit`` of candidate ``c``."""
+        m = fit.residual_count
+        return m * np.log(max(fit.cost, 1e-300)) + c.added * np.log(m)
 
-    others = [c for c in candidates if c.name != best.name and bic(c) < bic(best)]
+    # every candidate's dBIC is against the same baseline (choose judged them together)
+    others = [c for c in candidates if c.name != best.name and c.delta_bic < best.delta_bic]
     runner_up = choose(others, baseline, n, config, refit_without)[0] if others else None
     final = refit(best)
     if runner_up is None:
