@@ -356,6 +356,11 @@ SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
 #:   on the whole runs with each supported partner and the best pair named, both or neither
 #:   (``diagnose.partnered_look``; CHANGELOG "sixty-fourth stop"): every diagnosis in which a
 #:   named effect's interval reached outside its range, or a second look named nothing.
+#: - Of two candidates that pass their screenings, the one the whole runs' refits support more
+#:   (``diagnose.contested``; CHANGELOG "sixty-fifth stop"): diagnoses in which the screenings disagreed.
+#: - The refit after naming also from the base fit's start in every round after one that named
+#:   an effect (``diagnose.final_refit``; CHANGELOG "sixty-sixth stop"): diagnoses naming two
+#:   effects; the matrix's seeds 37-39 became development seeds, its figures come from 40-42.
 #: The confusion matrix's results files (every engine, law and configuration).
 MATRIX_FILES = ("diagnose_matrix", "diagnose_matrix_current", "diagnose_matrix_soft_constraint",
                 "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff")
@@ -457,6 +462,8 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
      SOFT_LAW_FILES),
     ("2026-12-05T12:30", "df5f652", "a named effect's interval physical, effects named as a pair", DIAGNOSIS_FILES),
     ("2026-12-05T16:49", "55e38f8", "of two candidates passing their screenings, the whole runs' choice", DIAGNOSIS_FILES),
+    ("2026-12-05T20:13", "9ce3245", "the refit after naming from the base fit's start in later rounds too", DIAGNOSIS_FILES),
+    ("2026-12-05T20:13", "9ce3245", "figures from seeds 37-39, which mechanisms were found on", MATRIX_FILES),
 )
 
 
