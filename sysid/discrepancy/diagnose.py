@@ -150,6 +150,13 @@ def channel_weights(runs: Sequence[Run], config: DiagnoseConfig) -> Weights:
     return Weights(use_current=not missing if config.use_current is None else config.use_current)
 
 
+def delta_bic(cost: float, reference_cost: float, added: int, n: int) -> float:
+    """The BIC of a fit of training cost ``cost`` against one of ``reference_cost`` on the same
+    ``n`` residuals, with ``added`` more parameters: ``n log(cost / reference_cost) + added log n``
+    (negative: the training runs support the first)."""
+    return float(n * np.log(max(cost, 1e-300) / max(reference_cost, 1e-300)) + added * np.log(n))
+
+
 @dataclass(frozen=True)
 class Candidate:
     """One candidate's evidence, and its refitted parameter set (``params``: the model with the
@@ -198,10 +205,9 @@ class Candidate:
     def judged(self, baseline: "Baseline", n: int) -> "Candidate":
         """This candidate's evidence against ``baseline`` (``n`` training residuals, for dBIC)."""
         hold0 = float(baseline.held_out_runs.sum())
-        dbic = n * np.log(max(self.train_cost, 1e-300) / max(baseline.train_rss, 1e-300)) + self.added * np.log(n)
         return replace(self, held_out_improvement=1.0 - self.held_out_cost / hold0 if hold0 > 0 else 0.0,
                        runs_improved=float(np.mean(self.held_out_runs < baseline.held_out_runs)),
-                       delta_bic=float(dbic))
+                       delta_bic=delta_bic(self.train_cost, baseline.train_rss, self.added, n))
 
 
 @dataclass(frozen=True)
@@ -796,11 +802,6 @@ def contested(best: Candidate, candidates: Sequence[Candidate], baseline: Baseli
     laterally stickier robot demands, which mimics both effects over one run, but not over
     every training run (whole runs' training cost 1232 against the payload's 856).
     """
-    def bic(c: Candidate, fit: FitResult) -> float:
-        """On the whole runs' ``fit`` of candidate ``c``."""
-        m = fit.residual_count
-        return m * np.log(max(fit.cost, 1e-300)) + c.added * np.log(m)
-
     # every candidate's dBIC is against the same baseline (choose judged them together)
     others = [c for c in candidates if c.name != best.name and c.delta_bic < best.delta_bic]
     runner_up = choose(others, baseline, n, config, refit_without)[0] if others else None
@@ -809,7 +810,7 @@ def contested(best: Candidate, candidates: Sequence[Candidate], baseline: Baseli
         return best, final
     rival = refit(runner_up)
 
-    keep = bic(best, final) <= bic(runner_up, rival)
+    keep = delta_bic(final.cost, rival.cost, best.added - runner_up.added, final.residual_count) <= 0.0
     progress(f"{best.name} and {runner_up.name} both pass on their screenings, the held-out runs favouring the "
              f"first, the training runs the second; refitted on the whole runs, "
              f"training cost {final.cost:.4g} and {rival.cost:.4g}: {(best if keep else runner_up).name}")
@@ -1026,9 +1027,9 @@ def whole_run_evidence(fit: FitResult, hold: np.ndarray, without: FitResult, hol
     training runs' dBIC against ``without`` with ``added`` parameters charged."""
     joined = baseline.joined(Baseline(np.inf, hold_without))
     n = fit.residual_count
-    dbic = n * np.log(max(fit.cost, 1e-300) / max(without.cost, 1e-300)) + added * np.log(n)
     return dict(held_out_improvement=1.0 - float(hold.sum()) / float(joined.held_out_runs.sum()),
-                runs_improved=float(np.mean(hold < joined.held_out_runs)), delta_bic=float(dbic),
+                runs_improved=float(np.mean(hold < joined.held_out_runs)),
+                delta_bic=delta_bic(fit.cost, without.cost, added, n),
                 train_cost=2.0 * fit.cost, held_out_cost=float(hold.sum()), held_out_runs=hold,
                 refit_without=True, whole_runs=True)
 
