@@ -726,8 +726,9 @@ def name_one(candidates: Sequence[Candidate], baseline: Baseline, n: int, config
     model with it on the whole runs (:func:`final_refit`). When :func:`choose` would pick
     another candidate with that one left out (a runner-up that passes every check of its own)
     and the training runs support it more on its screening (lower dBIC), both are refitted on
-    the whole runs and the one the training runs support more there is taken (:func:`contested`). When it picks none, ``look`` gives
-    the second look (:func:`second_look`: the candidate with its whole runs' evidence, which
+    the whole runs and the one the training runs support more there is taken
+    (:func:`contested`). When it picks none, ``look`` gives the second look
+    (:func:`second_look`: the candidate with its whole runs' evidence, which
     replaces its screening's, that refit, and whether it is named), and when that names
     nothing either, ``partner`` (if given) looks for the effect missing with it
     (:func:`partnered_look`: the pair with its evidence, which replaces theirs, the pair's
