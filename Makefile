@@ -52,6 +52,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law choose --choose-among compliant,soft_constraint
 	$(PY) benchmarks/diagnose_matrix.py --engines mujoco --mujoco-contact-law soft_constraint --mujoco-contact stiff
 	$(PY) benchmarks/effect_signal.py
+	$(PY) benchmarks/frictionloss_shape.py
 	$(PY) benchmarks/channel_weighting.py
 	$(PY) benchmarks/contact_time_constant.py
 	$(PY) benchmarks/contact_law.py
