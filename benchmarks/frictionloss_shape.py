@@ -42,7 +42,7 @@ from cobra_model import CobraModel, ModelParameters, SidewindingGait  # noqa: E4
 from integrators import mujoco_twin  # noqa: E402
 from integrators.simulator import SimSettings, Simulator  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
-from sysid.generators.mujoco_recording import twin_options  # noqa: E402
+from sysid.generators.mujoco_recording import rollout_with_torques, twin_options  # noqa: E402
 
 #: Joint-speed bands [rad/s] of the table: where the two laws differ is near rest.
 SPEED_BANDS = (0.0, 0.005, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0, np.inf)
@@ -58,25 +58,22 @@ def friction_on_gait(frictionloss: float, freq_hz: float, duration_s: float,
 
     options = dataclasses.replace(twin_options(ModelParameters.nominal()), frictionloss=frictionloss)
     mj_model = mujoco_twin.build(model.urdf_path, options)
-    data = mujoco.MjData(mj_model)
     gait = SidewindingGait(freq_hz)
     q0 = Simulator(model).rest_state(gait.q_ref(np.zeros(1))[0]).q
-    data.qpos[:], data.qvel[:] = mujoco_twin.pin_to_mj(q0, np.zeros(mj_model.nv))
-    limit = mujoco_twin.servo_error_limit(options)
-    dt = mj_model.opt.timestep
-    n_steps = int(round(duration_s / dt))
-    goals = gait.q_ref(np.arange(n_steps) * dt)
-    speed, torque = np.empty((n_steps, 11)), np.empty((n_steps, 11))
-    for i in range(n_steps):
-        q_now = data.qpos[7:]
-        data.ctrl[:] = goals[i] if limit is None else q_now + np.clip(goals[i] - q_now, -limit, limit)
-        mujoco.mj_step(mj_model, data)
+    friction_rows = mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF
+    speed, torque = [], []
+
+    def read_friction(data: mujoco.MjData) -> None:
         mujoco.mj_forward(mj_model, data)  # the constraint forces at the new state
         f = np.zeros(mj_model.nv)
-        rows = data.efc_type[:data.nefc] == mujoco.mjtConstraint.mjCNSTR_FRICTION_DOF
+        rows = data.efc_type[:data.nefc] == friction_rows
         f[data.efc_id[:data.nefc][rows]] = data.efc_force[:data.nefc][rows]
-        speed[i], torque[i] = data.qvel[6:], f[6:]
-    return speed, torque
+        speed.append(data.qvel[6:].copy())
+        torque.append(f[6:])
+
+    rollout_with_torques(mj_model, q0, gait.q_ref, duration_s,
+                         error_limit_rad=mujoco_twin.servo_error_limit(options), after_step=read_friction)
+    return np.array(speed), np.array(torque)
 
 
 def main(argv: list[str] | None = None) -> None:

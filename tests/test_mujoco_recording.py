@@ -15,7 +15,8 @@ from integrators.simulator import Simulator
 from cobra_model.servo import AMP_PER_CURRENT_UNIT, CURRENT_NOISE_A, PULSES_PER_REV, SERVO_GEAR_RATIO
 from sysid.generators.dataset import DATA_DIR, JOINT_RATE_HZ, RunPlan, load_manifest, measure
 from sysid.discrepancy.effects import EffectLibrary
-from sysid.generators.mujoco_recording import EFFECT_OPTIONS, record_mujoco, twin_options, with_effects
+from sysid.generators.mujoco_recording import (EFFECT_OPTIONS, record_mujoco, rollout_with_torques, twin_options,
+                                               with_effects)
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -138,6 +139,26 @@ def test_saturating_servo_cannot_outrun_the_motor(cobra):
     # yaw tracking error 0.193 vs 0.169 rad RMS measured
     late = {k: (r.q - r.q_ref)[r.t >= 2.0][:, yaw] for k, r in runs.items()}
     assert np.sqrt(np.mean(late["saturating"] ** 2)) > 1.05 * np.sqrt(np.mean(late["linear"] ** 2))
+
+
+def test_after_step_sees_every_step_and_changes_nothing(cobra):
+    """The per-step hook of rollout_with_torques is called once after each physics step, at that
+    step's time, and reading the state there (a forward pass for the constraint forces, as
+    benchmarks/frictionloss_shape.py does) leaves the recorded run bit for bit the same."""
+    mj_model = mujoco_twin.build(cobra.urdf_path, twin_options(PARAMS))
+    q0 = Simulator(cobra).rest_state(SidewindingGait(0.5).q_ref(np.zeros(1))[0]).q
+    times = []
+
+    def forward(data) -> None:
+        mujoco.mj_forward(mj_model, data)
+        times.append(data.time)
+
+    args = (mj_model, q0, SidewindingGait(0.5).q_ref, 0.2)
+    plain = rollout_with_torques(*args)
+    hooked = rollout_with_torques(*args, after_step=forward)
+    dt = mj_model.opt.timestep
+    assert np.allclose(times, dt * np.arange(1, 201), rtol=0, atol=1e-12)
+    assert all(np.array_equal(a, b) for a, b in zip(plain, hooked))
 
 
 @pytest.mark.parametrize("payload", [0.8, -0.3])

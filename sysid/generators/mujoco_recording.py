@@ -151,7 +151,8 @@ def rollout(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarra
 
 
 def rollout_with_torques(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callable[[np.ndarray], np.ndarray],
-                         duration_s: float, record_every: int = 2, error_limit_rad: float | None = None
+                         duration_s: float, record_every: int = 2, error_limit_rad: float | None = None,
+                         after_step: Callable[[mujoco.MjData], None] | None = None
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Run the MuJoCo twin from rest at ``q0`` with servo goals ``q_ref(t)``.
 
@@ -163,6 +164,10 @@ def rollout_with_torques(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callab
         record_every: physics steps between recorded samples (the first is the initial state).
         error_limit_rad: the servo's duty saturation as a position-error clip
             (:func:`integrators.mujoco_twin.servo_error_limit`); None: linear servos.
+        after_step: called with MuJoCo's data after every physics step (and after that step's
+            sample is recorded), to read what the samples do not hold. It must leave the state
+            (``qpos``, ``qvel``, ``act``) as it is; recomputing what depends on it
+            (``mj_forward``) is fine.
 
     Returns:
         ``(t, q, q_joints, torque)``: times (N,) [s], configurations (N, nq) in Pinocchio's
@@ -186,18 +191,19 @@ def rollout_with_torques(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callab
     data.qpos[:], data.qvel[:] = mujoco_twin.pin_to_mj(np.asarray(q0, dtype=float), np.zeros(mj_model.nv))
     qpos = np.empty((n_steps // record_every + 1, mj_model.nq))
     torque = np.empty((n_steps // record_every + 1, mj_model.nu))
-    for i in range(n_steps + 1):
-        if i % record_every == 0:
-            qpos[i // record_every] = data.qpos
-            torque[i // record_every] = data.actuator_force
-        if i == n_steps:
-            break
+    qpos[0], torque[0] = data.qpos, data.actuator_force
+    for i in range(n_steps):
         if error_limit_rad is None:
             data.ctrl[:] = goals[i]
         else:
             q_now = data.qpos[7:]
             data.ctrl[:] = q_now + np.clip(goals[i] - q_now, -error_limit_rad, error_limit_rad)
         mujoco.mj_step(mj_model, data)
+        if (i + 1) % record_every == 0:
+            qpos[(i + 1) // record_every] = data.qpos
+            torque[(i + 1) // record_every] = data.actuator_force
+        if after_step is not None:
+            after_step(data)
     bad = data.warning[mujoco.mjtWarning.mjWARN_BADQACC]
     if bad.number:
         raise SimulationDiverged(f"MuJoCo reported bad accelerations {bad.number} time(s) (last at degree of "
