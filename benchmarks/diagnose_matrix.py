@@ -152,12 +152,19 @@ class Job:
     @property
     def hidden(self) -> dict[str, float]:
         """Library effect -> the magnitude hidden in this job's data (empty for a null)."""
-        if self.effect is None:
-            return {}
-        if self.level == "pair":
-            library = EffectLibrary()
-            return {name: library[name].realistic for name in self.effect.split(PAIR_SEP)}
-        return {self.effect: float(self.magnitude)}
+        return hidden_magnitudes(self.effect, self.level, self.magnitude)
+
+
+def hidden_magnitudes(effect: str | None, level: str, magnitude: float | None) -> dict[str, float]:
+    """Library effect -> the magnitude hidden in a job's (or its row's) data, in the effect's
+    parameter unit, on either engine (MuJoCo's twin takes each at the same value): empty for a
+    null, each of a pair at its realistic magnitude."""
+    if effect is None:
+        return {}
+    if level == "pair":
+        library = EffectLibrary()
+        return {name: library[name].realistic for name in effect.split(PAIR_SEP)}
+    return {effect: float(magnitude)}
 
 
 def make_runs(job: Job, model: CobraModel) -> list:
@@ -265,6 +272,10 @@ def run_job(job: Job) -> dict[str, Any]:
             "gap_shrink": 1.0 - after.head_final_error_m / before.head_final_error_m
             if before.head_final_error_m else float("nan"),
             "held_out_cost_reduction": d.effects[0].held_out_cost_reduction if d.effects else 0.0,
+            # whether the final fit's residuals passed the whiteness check; when not, the report
+            # says that the intervals understate the uncertainty
+            "final_residuals_white": (d.fits[-1].residual_whiteness.white
+                                      if d.fits and d.fits[-1].residual_whiteness else None),
             "wall_s": wall}
 
 
@@ -428,9 +439,47 @@ def summary(rows: list[dict[str, Any]], engine: str) -> dict[str, Any]:
             # the cases that met issue 17's bar (the gap at least 70 % smaller) on that part alone
             "right_head_closed_70_above_truth": sum(c >= 0.7 for c in head_truth) if known else None,
             "right_joints_closed_70_above_truth": sum(c >= 0.7 for c in joint_truth) if known else None,
+            # the 95 % intervals of the effects named rightly, against the magnitudes hidden
+            "intervals": interval_coverage(everything),
             "median_wall_s": float(np.median([r["wall_s"] for r in mine])) if mine else float("nan"),
             "median_wall_s_pairs": float(np.median([r["wall_s"] for r in pairs])) if pairs else float("nan"),
             "confusion": {f"{t} -> {n}": c for (t, n), c in sorted(confusion.items())}}
+
+
+def interval_coverage(rows: list[dict[str, Any]]) -> dict[str, int]:
+    """How the 95 % intervals of the rows' rightly named effects (singles and pairs) stand to
+    the magnitudes hidden: ``named`` intervals (in rows that kept them), ``holding`` the truth;
+    ``checked`` of them from rows that kept whether their final fit's residuals were white
+    (rows written since it was kept), ``flagged`` ones whose report said the intervals
+    understate (residuals not white) and ``flagged_holding`` of those holding the truth."""
+    out = dict(named=0, holding=0, checked=0, flagged=0, flagged_holding=0)
+    for r in rows:
+        kept = r.get("named_ci95")  # each named effect's interval (rows kept them since ada70a4)
+        if not kept:
+            continue
+        for name, truth in hidden_magnitudes(r["effect"], r["level"], r["magnitude"]).items():
+            ci = kept.get(name)
+            if ci is None:
+                continue
+            holds = ci[0] <= truth <= ci[1]
+            white = r.get("final_residuals_white")
+            out["named"] += 1
+            out["holding"] += holds
+            out["checked"] += white is not None
+            out["flagged"] += white is False
+            out["flagged_holding"] += white is False and holds
+    return out
+
+
+def interval_cell(s: dict[str, Any]) -> str:
+    """The summary's interval coverage (:func:`interval_coverage`) as a table cell."""
+    c = s["intervals"]
+    if not c["named"]:
+        return "-"
+    cell = f"{c['holding']} of {c['named']}"
+    if c["checked"]:
+        cell += f" ({c['flagged']} of {c['checked']} flagged as understating, {c['flagged_holding']} of them holding)"
+    return cell
 
 
 def closed_cell(s: dict[str, Any]) -> str:
@@ -468,8 +517,9 @@ def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], m
              "floor (cases) | median joint RMSE shrink when right, above the nulls' floor (cases) | "
              "median share closed when right of the gap above our model's at the truth (cases closing >= 70 % of "
              "cases above it): head; joints | "
+             "95 % intervals of the effects named rightly holding the value hidden | "
              "median wall per diagnosis [s] | pairs: both named | median wall per pair [s] |",
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|"]
     for engine in engines:
         s = summary(rows, engine)
         both, wall_pairs = ((f"{round(s['pairs_both_named_rate'] * s['pairs'])}/{s['pairs']}",
@@ -480,7 +530,7 @@ def markdown(rows: list[dict[str, Any]], engines: list[str], seeds: list[int], m
                      f"{100 * s['median_head_shrink_above_floor']:.0f} % ({s['right_head_above_floor']}; floor "
                      f"{1000 * s['head_floor_m']:.1f} mm) | "
                      f"{100 * s['median_joint_shrink_above_floor']:.0f} % ({s['right_joints_above_floor']}; floor "
-                     f"{1000 * s['joint_floor_rad']:.2f} mrad) | {closed_cell(s)} | "
+                     f"{1000 * s['joint_floor_rad']:.2f} mrad) | {closed_cell(s)} | {interval_cell(s)} | "
                      f"{s['median_wall_s']:.0f} | {both} | {wall_pairs} |")
     lines += ["", "The nulls' floor: the largest held-out final head error (joint RMSE) a fitted model leaves on "
               "the engine's nulls, where nothing is missing (sensor noise, and on another engine its ground's "

@@ -114,6 +114,10 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
                        f"{s['right_head_above_truth']} cases >= 70 %), joints "
                        f"{_pct(s['median_joint_closed_above_truth'])} ({s['right_joints_closed_70_above_truth']} of "
                        f"{s['right_joints_above_truth']})")
+        # the 95 % intervals of the effects named rightly, against the values hidden (files since ada70a4)
+        c = s.get("intervals", {})
+        if c.get("named"):
+            shrink += f"; 95 % intervals of the right names holding the value hidden: {c['holding']} of {c['named']}"
         hidden = [r for r in mine if r["level"] in ("realistic", "near_limit")]
         out.append((f"missing effect named first, {where} (seeds {', '.join(map(str, doc['meta']['seeds']))})",
                     f"{_pct(s['named_first_rate'])} ({', '.join(levels)}); {_pct(s['false_positive_rate'])} "

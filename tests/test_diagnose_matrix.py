@@ -12,8 +12,8 @@ import pytest
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, EVAL_SEEDS, MUJOCO_CONTACTS, Job,  # noqa: E402
-                                        finished_rows, gap_at_truth, job_key, jobs_for, make_runs, near_limit,
-                                        summary, truth_params)
+                                        finished_rows, gap_at_truth, interval_coverage, job_key, jobs_for, make_runs,
+                                        near_limit, summary, truth_params)
 from benchmarks.effect_signal import ENCODER_FLOOR_RAD, HEAD_FLOOR_M, signal  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from cobra_model.errors import InputError  # noqa: E402
@@ -156,6 +156,26 @@ def test_summary_counts_right_names_false_positives_and_medians() -> None:
     assert s["median_wall_s"] == pytest.approx(40)
     assert s["confusion"] == {"actuator_delay -> actuator_delay": 1, "backlash -> actuator_delay": 1,
                               "backlash -> backlash": 1, "none -> backlash": 1, "none -> none": 1}
+
+
+def test_interval_coverage_counts_the_right_names_intervals_against_the_values_hidden() -> None:
+    delay, friction = EffectLibrary()["actuator_delay"].realistic, EffectLibrary()["joint_coulomb_friction"].realistic
+
+    def named(effect: str | None, level: str, magnitude: float | None, intervals: dict, white: bool | None) -> dict:
+        return {**_row("mujoco", effect, next(iter(intervals), None)), "level": level, "magnitude": magnitude,
+                "named_all": list(intervals), "named_ci95": intervals, "final_residuals_white": white,
+                "all_named": effect is not None and set(effect.split("+")) <= set(intervals)}
+
+    rows = [named("backlash", "realistic", 0.02, {"backlash": [0.019, 0.021]}, True),          # holds
+            named("backlash", "near_limit", 0.005, {"backlash": [0.006, 0.007]}, False),      # misses, flagged
+            named("backlash", "realistic", 0.02, {"actuator_delay": [0.0, 1.0]}, False),      # not hidden: not counted
+            named("actuator_delay+joint_coulomb_friction", "pair", None,  # each at its realistic value
+                  {"actuator_delay": [delay - 1e-3, delay + 1e-3],
+                   "joint_coulomb_friction": [0.5 * friction, 0.9 * friction]}, False),
+            named(None, "null", None, {}, None),
+            {**_row("mujoco", "backlash", "backlash"), "level": "realistic", "magnitude": 0.02}]  # kept no intervals
+    assert interval_coverage(rows) == dict(named=4, holding=2, checked=4, flagged=3, flagged_holding=1)
+    assert summary(rows, "mujoco")["intervals"]["holding"] == 2
 
 
 def test_the_gaps_shrink_is_taken_over_the_cases_above_the_floor_the_nulls_leave() -> None:
