@@ -32,6 +32,7 @@ Run: ``.venv/bin/python benchmarks/sim_speed.py``.
 """
 from __future__ import annotations
 
+import argparse
 import sys
 import time
 from pathlib import Path
@@ -93,7 +94,8 @@ def time_batch(model: CobraModel, table: np.ndarray, n_env: int, seconds: float 
     return best / (n * n_env)
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)  # --help; no options
     model = CobraModel.load()
     gait = SidewindingGait(0.5)
     table = gait.q_ref(np.arange(int(DURATION / DT) + 1) * DT)
