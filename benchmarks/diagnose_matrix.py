@@ -461,7 +461,7 @@ def interval_coverage(rows: list[dict[str, Any]]) -> dict[str, int]:
             ci = kept.get(name)
             if ci is None:
                 continue
-            holds = ci[0] <= truth <= ci[1]
+            holds = bool(ci[0] <= truth <= ci[1])  # a Python bool: numpy's would make the counts floats in the JSON
             white = r.get("final_residuals_white")
             out["named"] += 1
             out["holding"] += holds

@@ -118,6 +118,9 @@ def _matrix(doc: dict) -> list[tuple[str, str, str]]:
         c = s.get("intervals", {})
         if c.get("named"):
             shrink += f"; 95 % intervals of the right names holding the value hidden: {c['holding']} of {c['named']}"
+            if c.get("checked") == c["named"]:  # every row kept its final fit's whiteness verdict
+                shrink += (f" (of the {c['named'] - c['holding']} missing it, the report warned that the intervals "
+                           f"understate in {c['flagged'] - c['flagged_holding']})")
         hidden = [r for r in mine if r["level"] in ("realistic", "near_limit")]
         out.append((f"missing effect named first, {where} (seeds {', '.join(map(str, doc['meta']['seeds']))})",
                     f"{_pct(s['named_first_rate'])} ({', '.join(levels)}); {_pct(s['false_positive_rate'])} "

@@ -176,6 +176,10 @@ def test_interval_coverage_counts_the_right_names_intervals_against_the_values_h
             {**_row("mujoco", "backlash", "backlash"), "level": "realistic", "magnitude": 0.02}]  # kept no intervals
     assert interval_coverage(rows) == dict(named=4, holding=2, checked=4, flagged=3, flagged_holding=1)
     assert summary(rows, "mujoco")["intervals"]["holding"] == 2
+    # a run's own rows carry numpy floats (a reloaded file's are Python's): still counts, not floats in the JSON
+    in_process = [{**r, "named_ci95": {k: list(np.asarray(v)) for k, v in r["named_ci95"].items()}}
+                  if r.get("named_ci95") else r for r in rows]
+    assert {k: type(v) for k, v in interval_coverage(in_process).items()} == dict.fromkeys(interval_coverage(rows), int)
 
 
 def test_the_gaps_shrink_is_taken_over_the_cases_above_the_floor_the_nulls_leave() -> None:
