@@ -249,8 +249,15 @@ def _contact_step(doc: dict) -> list[tuple[str, str, str]]:
              f"{own['twin']['joint_error_worst_rad'] * 1e3:.2f} mrad (default)", "-")]
 
 
+def _named_cell(row: dict) -> str:
+    """A diagnosis row's names, and the effects it reported as a structural difference instead."""
+    structural = [s["name"] for s in row.get("structural") or [] if s["name"] not in row["named"]]
+    reported = f" (structural, not named: {', '.join(structural)})" if structural else ""
+    return f"{', '.join(row['named']) or 'none'}{reported}"
+
+
 def _robustness(doc: dict) -> list[tuple[str, str, str]]:
-    named = ", ".join(f"{r['label']}: {', '.join(r['named']) or 'none'}" for r in doc["rows"])
+    named = ", ".join(f"{r['label']}: {_named_cell(r)}" for r in doc["rows"])
     contact = "stiff (2 ms)" if doc["meta"].get("contact") == "stiff" else "default (20 ms)"
     currents = ", motor currents logged and fitted" if doc["meta"].get("motor_currents") else ""
     law = doc["meta"].get("contact_law", "compliant")
