@@ -98,7 +98,7 @@ def test_clamped_joints_are_named(runs):
     assert abs(limit.limit_rad) == pytest.approx(np.pi / 2)
     assert 0 < limit.at_limit_fraction < 0.5
     text = "\n".join(f.problems())
-    assert "joint 4 stays flat" in text and "joint 6 at its limit" in text
+    assert "joint 4 keeps under half its commanded swing" in text and "joint 6 at its limit" in text
 
 
 def test_a_recording_with_a_servo_motion_profile_is_named(runs):

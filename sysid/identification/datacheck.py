@@ -161,9 +161,10 @@ class JointSaturation:
         if self.kind == "limit":
             return (f"joint {self.joint} at its limit {self.limit_rad:+.3f} rad for "
                     f"{100 * self.at_limit_fraction:.1f} % of the samples (first at {self.at_limit_first_s:.2f} s)")
-        return (f"joint {self.joint} stays flat: it swings {self.measured_swing_rad:.3f} rad of its commanded "
-                f"{self.commanded_swing_rad:.3f} rad "
-                f"({100 * self.measured_swing_rad / self.commanded_swing_rad:.0f} %)")
+        return (f"joint {self.joint} keeps under half its commanded swing: it swings {self.measured_swing_rad:.3f} "
+                f"rad of {self.commanded_swing_rad:.3f} rad "
+                f"({100 * self.measured_swing_rad / self.commanded_swing_rad:.0f} %; a clamp, a stall, a broken "
+                "encoder, or a gait faster than the servo follows)")
 
 
 @dataclass(frozen=True)
