@@ -262,6 +262,9 @@ def run_job(job: Job) -> dict[str, Any]:
             # each named effect's fitted value (parameter units): an effect named at its inactive value is no effect
             "named_values": {e.name: e.value for e in d.effects},
             "named_ci95": {e.name: list(e.ci95) if e.ci95 else None for e in d.effects},
+            # how well each named effect's predicted residual signature matched, in [0, 1] (a
+            # tie-breaker of the ranking today; kept to see whether right and wrong names separate)
+            "named_signature_match": {e.name: e.signature_match for e in d.effects},
             # each structural difference with why it is no physical value of its effect
             "structural_why": {s.name: s.why for s in d.structural},
             "all_named": bool(job.hidden) and set(job.hidden) <= set(named),
