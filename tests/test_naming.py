@@ -10,7 +10,8 @@ import pytest
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.errors import InputError
 from integrators.simulator import Simulator
-from sysid.discrepancy.diagnose import Baseline, Candidate, DiagnoseConfig, choose, diagnose, effect_share, name_one
+from sysid.discrepancy.diagnose import (Baseline, Candidate, DiagnoseConfig, Share, choose, diagnose, effect_share,
+                                        name_one)
 from sysid.identification.lockstep import run
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.dataset import RunPlan, record
@@ -34,12 +35,14 @@ class RefitWithout:
     """Stands in for the check of a candidate without its effect: a fixed refit result and share
     of the held-out cost its effect carries (1 unless given) per candidate, calls recorded."""
 
-    def __init__(self, results: dict[str, Baseline], shares: dict[str, float] | None = None):
-        self.results, self.shares, self.calls = results, shares or {}, []
+    def __init__(self, results: dict[str, Baseline], shares: dict[str, float] | None = None,
+                 drives_worse: dict[str, str] | None = None):
+        self.results, self.shares, self.worse, self.calls = results, shares or {}, drives_worse or {}, []
 
-    def __call__(self, c: Candidate) -> tuple[Baseline, float]:
+    def __call__(self, c: Candidate) -> tuple[Baseline, Share]:
         self.calls.append(c.name)
-        return self.results[c.name], self.shares.get(c.name, 1.0)
+        worse = self.worse.get(c.name)
+        return self.results[c.name], Share(self.shares.get(c.name, 1.0), 1.2 if worse else 0.1, worse)
 
 
 def test_a_candidate_whose_refit_without_the_effect_fits_as_well_is_not_named():
@@ -303,6 +306,20 @@ def test_a_candidate_whose_effect_carries_too_little_itself_is_set_aside_and_the
     assert best is None
 
 
+def test_an_effect_at_the_drives_that_fits_the_drives_worse_is_a_proxy_and_the_next_is_named():
+    """MuJoCo's stiff contact with its encoders offset (mujoco_robustness_stiff_current): after
+    the offset, a torque limit cut the held-out cost by 30 % while its joints and currents fit
+    worse. Its check (:func:`effect_share`) says so; it is set aside as a proxy with that reason,
+    and the next candidate, whose drives fit better with it, is named."""
+    why = "torque_limit = 3.2 N m, with which the held-out joints and currents it acts through fit 20 % worse"
+    refit = RefitWithout({"limit": BASELINE, "friction": BASELINE}, drives_worse={"limit": why})
+    cands = [candidate("limit", 3_000.0, [30.0, 30.0, 30.0]), candidate("friction", 4_000.0, [40.0, 40.0, 40.0])]
+    best, ranked, proxies, _ = choose(cands, BASELINE, N, DiagnoseConfig(), refit)
+    assert refit.calls == ["limit", "friction"]
+    assert [(c.name, c.implausible, c.drives_ratio) for c in proxies] == [("limit", why, 1.2)]
+    assert best is not None and best.name == "friction" and best.drives_ratio == 0.1 and best.implausible is None
+
+
 def measured_runs(truth: ModelParameters) -> list:
     """Two runs (0.5, 0.65 Hz) of 3 s made by this simulator and measured like the reference dataset."""
     model = CobraModel.load()
@@ -328,9 +345,10 @@ def test_the_share_an_effect_carries_is_nil_at_its_inactive_value_and_large_wher
     fitted = LIBRARY[effect].parameter.value if value is None else value
     c = replace(candidate(effect, 0.0, [0.0]), params=LIBRARY.transform(truth, {effect: fitted}))
     share = run(effect_share(c, LIBRARY[effect], holdout, Weights()))
-    if value is None:
-        assert share == 0.0
-    elif not in_data:
-        assert share < 0.0
-    else:
-        assert share > 0.5
+    if value is None:  # the same model: every channel's cost the same, the drives not worse
+        assert share.value == 0.0 and share.drives_ratio == 1.0 and share.drives_worse is None
+    elif not in_data:  # the backlash acts through the drives and fits the joints worse than the truth without it
+        assert share.value < 0.0 and share.drives_ratio > 1.0
+        assert share.drives_worse.startswith("backlash = 0.001 rad, with which the held-out joints it acts through")
+    else:  # the friction is there: the joints fit far better with it
+        assert share.value > 0.5 and share.drives_ratio < 0.5 and share.drives_worse is None

@@ -36,8 +36,12 @@
    carry the improvement itself (:func:`effect_share`): switched off at the candidate's own
    parameters, without a refit, the held-out cost must rise by ``min_improvement``, at the
    parameters as they are and at microscopic perturbations of them alike (on a stiff ground a
-   single rollout's cost is rough at scales no data resolve). An effect at or near its inactive
-   value is the same model switched off, so its share is nil and it is not named; nor is one
+   single rollout's cost is rough at scales no data resolve). An effect at the joints' drives
+   (:attr:`sysid.discrepancy.effects.Effect.acts_through_drives`) whose drives' channels (joints,
+   and currents when fitted) fit the held-out runs worse with it on than off, at the same
+   rollouts, is a proxy too (:class:`Share`): it moves the head path only through them. An
+   effect at or near its inactive value is the same model switched off, so its share is nil and
+   it is not named; nor is one
    closer to it than the hardware resolves (:meth:`sysid.discrepancy.effects.Effect.unresolved`:
    a backlash narrower than the encoder count that every Dynamixel's loop already acts on).
    A candidate that would be named but whose fitted value is no physical value of its effect
@@ -166,9 +170,11 @@ class Candidate:
     the held-out one (whole runs) and ``held_out_runs`` its per-run terms; ``added`` counts the
     parameters the effect adds; ``refit_without`` tells whether its model was refitted without
     the effect (:func:`choose`), and ``effect_share`` then gives the held-out improvement its
-    effect carries itself (:func:`effect_share`; None: not measured); ``implausible`` says why
-    its fitted value is no physical value of the effect
-    (:meth:`sysid.discrepancy.effects.Effect.implausible`; None: it is one), ``unresolved`` why it
+    effect carries itself and ``drives_ratio`` the drives' channels' held-out cost with the
+    effect on over off (:func:`effect_share`; None: not measured); ``implausible`` says why it
+    is no physical instance of the effect: its fitted value is no physical value
+    (:meth:`sysid.discrepancy.effects.Effect.implausible`), or an effect at the drives fits the
+    drives' own channels worse (:attr:`Share.drives_worse`); None: it is one; ``unresolved`` why it
     is too close to the inactive value to be told from the hardware without the effect
     (:meth:`sysid.discrepancy.effects.Effect.unresolved`; None: it is not); ``whole_runs`` that
     its evidence is that of its refit on the whole training runs (:func:`second_look`), not of
@@ -192,6 +198,7 @@ class Candidate:
     effect_share: float | None = None
     whole_runs: bool = False
     unresolved: str | None = None
+    drives_ratio: float | None = None
 
     def to_json(self) -> dict:
         return {"name": self.name, "value": self.value, "unit": self.unit,
@@ -199,8 +206,9 @@ class Candidate:
                 "delta_bic": self.delta_bic,
                 "signature_match": self.signature_match, "train_cost": self.train_cost,
                 "held_out_cost": self.held_out_cost, "refit_without_effect": self.refit_without,
-                "effect_share": self.effect_share, "implausible": self.implausible, "unresolved": self.unresolved,
-                "whole_runs": self.whole_runs}
+                "effect_share": self.effect_share,
+                "drives_ratio": self.drives_ratio if self.drives_ratio is None or np.isfinite(self.drives_ratio) else None,
+                "implausible": self.implausible, "unresolved": self.unresolved, "whole_runs": self.whole_runs}
 
     def judged(self, baseline: "Baseline", n: int) -> "Candidate":
         """This candidate's evidence against ``baseline`` (``n`` training residuals, for dBIC)."""
@@ -666,7 +674,7 @@ def significant(c: Candidate, config: DiagnoseConfig) -> bool:
 
 
 def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: DiagnoseConfig,
-           refit_without: Callable[[Candidate], tuple[Baseline, float]]
+           refit_without: Callable[[Candidate], tuple[Baseline, Share]]
            ) -> tuple[Candidate | None, list[Candidate], list[Candidate], Baseline]:
     """The candidate to name (or None), all candidates ranked and judged against the final
     baseline, the proxies: significant candidates whose fitted value is no physical value of
@@ -708,11 +716,13 @@ def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: 
             continue
         without, share = refit_without(top)
         baseline = baseline.joined(without)
-        pending = [replace(c, refit_without=True, effect_share=share) if c.name == top.name else c for c in pending]
+        pending = [replace(c, refit_without=True, effect_share=share.value, drives_ratio=share.drives_ratio,
+                           implausible=c.implausible or share.drives_worse) if c.name == top.name else c
+                   for c in pending]
 
 
 def name_one(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: DiagnoseConfig,
-             library: EffectLibrary, refit_without: Callable[[Candidate], tuple[Baseline, float]],
+             library: EffectLibrary, refit_without: Callable[[Candidate], tuple[Baseline, Share]],
              look: Callable[[list[Candidate], Baseline], tuple[Candidate | None, FitResult | None, bool]],
              refit: Callable[[Candidate], FitResult],
              partner: Callable[[Candidate, list[Candidate], Baseline],
@@ -775,7 +785,7 @@ def name_one(candidates: Sequence[Candidate], baseline: Baseline, n: int, config
 
 
 def contested(best: Candidate, candidates: Sequence[Candidate], baseline: Baseline, n: int, config: DiagnoseConfig,
-              refit_without: Callable[[Candidate], tuple[Baseline, float]], refit: Callable[[Candidate], FitResult],
+              refit_without: Callable[[Candidate], tuple[Baseline, Share]], refit: Callable[[Candidate], FitResult],
               progress: Callable[[str], None] = lambda m: None) -> tuple[Candidate, FitResult]:
     """The candidate to name of ``best`` (:func:`choose`'s pick, the best held-out cut on its
     screening) and a runner-up that the training runs support more on its screening (lower
@@ -833,14 +843,36 @@ def switched_off(c: Candidate, effect: Effect) -> ModelParameters:
     return c.params.with_values(**{p.name: p.value}).with_frozen([p.name])
 
 
-def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: Weights) -> Steps[float]:
+@dataclass(frozen=True)
+class Share:
+    """What switching a candidate's effect off does on the held-out runs (:func:`effect_share`).
+
+    Attributes:
+        value: the share of the held-out cost the effect carries itself, ``1 - cost(on) /
+            cost(off)``, the least over the perturbations.
+        drives_ratio: the drives' channels' held-out cost (joints, and currents when fitted)
+            with the effect on over off, the least over the perturbations (NaN when no pair
+            was simulated).
+        drives_worse: for an effect that acts through the drives
+            (:attr:`sysid.discrepancy.effects.Effect.acts_through_drives`) whose drives' channels
+            fit worse with it on at every perturbation (``drives_ratio > 1``): why it is a proxy,
+            in words; None otherwise.
+    """
+
+    value: float
+    drives_ratio: float
+    drives_worse: str | None = None
+
+
+def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: Weights) -> Steps[Share]:
     """The share of candidate ``c``'s held-out cost that its effect carries itself:
     ``1 - cost(c) / cost(c switched off)``, the other parameters left as the candidate's refit
     found them (no refit), the least of it over the parameters as they are
     and :data:`SHARE_PERTURBATIONS` perturbations of every other free parameter by
     :data:`SHARE_PERTURBATION_UNIT` of its range (each applied to both models, so that a pair
-    differs in the effect alone; a perturbed set that is no valid one is left out). A
-    computation (:mod:`sysid.identification.lockstep`).
+    differs in the effect alone; a perturbed set that is no valid one is left out); and, from the
+    same rollouts, whether an effect that acts through the drives fits the drives' own channels
+    worse (:class:`Share`). A computation (:mod:`sysid.identification.lockstep`).
 
     Physical reason: on a stiff ground, touchdowns and stick-slip transitions fall on other time
     steps after parameter changes far below anything the data resolve, so a single held-out
@@ -850,6 +882,17 @@ def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: 
     not be named for it: an effect that is there cuts the cost at every microscopic
     perturbation, luck does not. An effect switched off at its inactive value is the same model,
     so its share is exactly nil.
+
+    The drives' check: an effect at the drives (joint friction, backlash, a delay, a torque
+    limit, an encoder offset) moves the body only through the joints' motion, which the encoders
+    and the currents measure directly. If with it on those channels fit the held-out runs worse
+    than with it off, its held-out gain comes through the head path alone, bought with a joint
+    motion the encoders contradict: a proxy for a difference of the ground or the body. On
+    MuJoCo's stiff contact with its encoders offset and the currents logged, a torque limit of
+    3.2 N m (MuJoCo's servos have none) cut the held-out cost by 30 % after the offset was named
+    while raising the joints' cost by 22 % and the currents' by 11 %; every right name of a
+    drive effect on MuJoCo's runs (the matrix's development seeds 37-39, both laws, near the
+    detection limit included) cut the joints' cost to 0.001-0.31 of its value without it.
     """
     p = effect.parameter
     z_on = c.params.to_unit()
@@ -866,11 +909,23 @@ def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: 
         X_on.append(on.as_vector())
         X_off.append(on.with_values(**{p.name: p.value}).as_vector())
     # both models in one batch of the candidate's free set, the effect's entry at its inactive value
-    costs = yield from _cost_steps(Objective(list(holdout), c.params, weights), np.array(X_on + X_off))
-    cost_on, cost_off = costs[:len(X_on)], costs[len(X_on):]
+    held = Objective(list(holdout), c.params, weights)
+    R = yield Evaluate(held, np.array(X_on + X_off), "mask")
+    costs = np.array([float(r @ r) for r in R])
+    costs = np.where(np.isnan(costs), np.inf, costs)  # a diverged rollout costs infinity, as in _cost_steps
+    drives = np.array([sum(float(v @ v) for k, v in held.channels(r).items() if k != "head") for r in R])
+    k = len(X_on)
     with np.errstate(divide="ignore", invalid="ignore"):
-        shares = np.where(cost_off > 0, 1.0 - cost_on / cost_off, 0.0)
-    return float(np.min(np.nan_to_num(shares, nan=-np.inf)))
+        shares = np.where(costs[k:] > 0, 1.0 - costs[:k] / costs[k:], 0.0)
+        ratios = drives[:k] / drives[k:]
+    share = float(np.min(np.nan_to_num(shares, nan=-np.inf)))
+    ratio = float(np.nanmin(ratios)) if np.isfinite(ratios).any() else float("nan")
+    worse = None
+    if effect.acts_through_drives and ratio > 1.0:
+        channels = "joints and currents" if weights.use_current else "joints"
+        worse = (f"{p.name} = {c.params.value(p.name):.4g} {p.unit}, with which the held-out {channels} it acts "
+                 f"through fit {100 * (ratio - 1.0):.0f} % worse: its gain comes through the head path alone")
+    return Share(share, ratio, worse)
 
 
 def _cost_or_inf(objective: Objective, x: np.ndarray) -> Steps[float]:
@@ -1089,11 +1144,13 @@ def second_look(candidates: Sequence[Candidate], baseline: Baseline, current: Mo
         _held_out_costs(fit.params, holdout, weights),
         effect_share(on, effect, holdout, weights)])
     looked = replace(on, **whole_run_evidence(fit, hold, without, hold_without, baseline, c.added),
-                     implausible=effect.implausible(value), effect_share=share, unresolved=effect.unresolved(value))
+                     implausible=effect.implausible(value) or share.drives_worse, effect_share=share.value,
+                     drives_ratio=share.drives_ratio, unresolved=effect.unresolved(value))
     named = (looked.implausible is None and looked.unresolved is None and significant(looked, config)
-             and share >= config.min_improvement)
+             and share.value >= config.min_improvement)
     progress(f"{c.name} on the whole runs: {effect.parameter.name} = {value:.4g} {effect.parameter.unit}, held-out cost "
-             f"{-100 * looked.held_out_improvement:+.0f} %, its own share {100 * share:.0f} %, dBIC {looked.delta_bic:.0f}: "
+             f"{-100 * looked.held_out_improvement:+.0f} %, its own share {100 * share.value:.0f} %, "
+             f"dBIC {looked.delta_bic:.0f}: "
              + ("named" if named else "not named"))
     return looked, fit, named
 
@@ -1151,7 +1208,8 @@ def partnered_look(looked: Candidate, candidates: Sequence[Candidate], baseline:
     intervals = {r.name: (r.ci_low, r.ci_high) for r in fit.report}
     evidence = whole_run_evidence(fit, hold, without, hold_without, baseline, sum(c.added for c in pair))
     values = [fit.params.value(e.parameter.name) for e in effects]
-    pair = [replace(c, value=v, effect_share=share, implausible=e.implausible(v, intervals.get(e.parameter.name)),
+    pair = [replace(c, value=v, effect_share=share.value, drives_ratio=share.drives_ratio,
+                    implausible=e.implausible(v, intervals.get(e.parameter.name)) or share.drives_worse,
                     unresolved=e.unresolved(v), **evidence)
             for c, e, v, share in zip(pair, effects, values, shares)]
     named = significant(pair[0], config) and all(c.implausible is None and c.unresolved is None
@@ -1308,7 +1366,7 @@ def _diagnose_one_law(train: Sequence[Run], holdout: Sequence[Run], params: Mode
         n = null.residual_count
         baseline = Baseline(2.0 * null.cost, hold_null).joined(Baseline(np.inf, hold_current))
 
-        def refit_without(c: Candidate, round_: int = round_) -> tuple[Baseline, float]:
+        def refit_without(c: Candidate, round_: int = round_) -> tuple[Baseline, Share]:
             progress(f"round {round_ + 1}: checking {c.name}: its model without it, refitted and as it is")
             effect = library[c.name]
             (alone, hold), share = run_together([

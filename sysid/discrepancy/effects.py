@@ -103,6 +103,15 @@ class Effect:
         simulator): looked up in the simulator's own tables, so it cannot disagree with them."""
         return entry_of(self.parameter.name)
 
+    @property
+    def acts_through_drives(self) -> bool:
+        """Whether the effect enters at the joints' drives (the servo loop, the motor, the
+        encoders or the commands: ``Entry.stage`` ``"actuator"`` or ``"commands"``), so that it
+        moves the body only through the joints' motion, which the encoders (and the motor
+        currents, when logged) measure directly; a ground or body effect (``"ground"``,
+        ``"model"``) moves the head path without going through them."""
+        return self.enters.stage in ("actuator", "commands")
+
     def implausible(self, value: float, ci95: tuple[float, float] | None = None) -> str | None:
         """Why ``value`` of the effect's parameter, with its 95 % interval ``ci95`` when given,
         is not a physical value of the effect (None if it is): outside :attr:`plausible`, within

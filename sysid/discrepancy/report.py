@@ -42,11 +42,13 @@ def write_diagnosis_report(result: Diagnosis, out: Path) -> Path:
     for i, round_ in enumerate(result.rounds, start=1):
         page.heading(f"Candidates, round {i}")
         page.table(["effect", "fitted value", "unit", "held-out cost reduction", "held-out runs improved", "dBIC",
-                    "signature match", "refitted without it", "share its effect carries", "physical value",
+                    "signature match", "refitted without it", "share its effect carries",
+                    "drives' channels' cost with / without it", "physical value",
                     "resolved from none",
                     "evidence from"],
                    [[c.name, c.value, c.unit, c.held_out_improvement, c.runs_improved, c.delta_bic, c.signature_match,
                      "yes" if c.refit_without else "no", "-" if c.effect_share is None else c.effect_share,
+                     "-" if c.drives_ratio is None else c.drives_ratio,
                      c.implausible or "yes", c.unresolved or "yes",
                      "whole runs (second look)" if c.whole_runs else "screening"]
                     for c in round_])
@@ -54,7 +56,9 @@ def write_diagnosis_report(result: Diagnosis, out: Path) -> Path:
                        "alone, or a checked candidate's model refitted without its effect. The share its effect "
                        "carries: how much of the held-out cost comes back when the effect is switched off at the "
                        "candidate's own parameters (a checked candidate is named only if it is at least the "
-                       "required reduction). A second look: when no screened candidate passes, the one the "
+                       "required reduction); an effect at the joints' drives (friction, backlash, delay, torque "
+                       "limit, encoder offset) whose joints (and currents) fit the held-out runs worse with it than "
+                       "without it is a proxy: it can move the head path only through them. A second look: when no screened candidate passes, the one the "
                        "training runs support most is refitted on the whole runs, as naming it would, and judged "
                        "there.")
     page.heading("Augmented model")

@@ -480,7 +480,10 @@ class Objective:
     def channel_residuals(self, x: np.ndarray) -> dict[str, np.ndarray]:
         """The weighted residuals at ``x`` by channel: ``head`` (x and y of every run, the
         motion-capture gaps left out), ``joints`` and, with ``Weights.use_current``, ``current``."""
-        r = self.residuals(np.atleast_2d(x))[0]
+        return self.channels(self.residuals(np.atleast_2d(x))[0])
+
+    def channels(self, r: np.ndarray) -> dict[str, np.ndarray]:
+        """One residual vector ``r`` of this objective split by channel, as :meth:`channel_residuals`."""
         blocks = self.residual_blocks()
         head = np.concatenate([b[:, :2].ravel() for b in blocks])
         out = {"head": r[head[~self.head_gaps()[head]]],
