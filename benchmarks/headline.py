@@ -478,6 +478,11 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-12-05T16:49", "55e38f8", "of two candidates passing their screenings, the whole runs' choice", DIAGNOSIS_FILES),
     ("2026-12-05T20:13", "9ce3245", "the refit after naming from the base fit's start in later rounds too", DIAGNOSIS_FILES),
     ("2026-12-05T20:13", "9ce3245", "figures from seeds 37-39, which mechanisms were found on", MATRIX_FILES),
+    # an effect at the drives that fits the drives' channels worse with it is a proxy (found on
+    # mujoco_robustness_stiff_current's seed 11, whose robustness figures now come from seed 12)
+    ("2026-12-06T07:56", "6b31db5", "an effect at the drives fitting them worse named", DIAGNOSIS_FILES),
+    ("2026-12-06T07:56", "6b31db5", "figures from seed 11, which a mechanism was found on",
+     tuple(f for f in DIAGNOSIS_FILES if f.startswith("mujoco_robustness"))),
 )
 
 
