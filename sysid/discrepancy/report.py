@@ -58,9 +58,9 @@ def write_diagnosis_report(result: Diagnosis, out: Path) -> Path:
                        "candidate's own parameters (a checked candidate is named only if it is at least the "
                        "required reduction); an effect at the joints' drives (friction, backlash, delay, torque "
                        "limit, encoder offset) whose joints (and currents) fit the held-out runs worse with it than "
-                       "without it is a proxy: it can move the head path only through them. A second look: when no screened candidate passes, the one the "
-                       "training runs support most is refitted on the whole runs, as naming it would, and judged "
-                       "there.")
+                       "without it is a proxy: it can move the head path only through them. A second look: when "
+                       "no screened candidate passes, the one the training runs support most is refitted on the "
+                       "whole runs, as naming it would, and judged there.")
     page.heading("Augmented model")
     fit = result.fits[-1]
     if fit.residual_whiteness is not None:
