@@ -485,6 +485,11 @@ def _cost_steps(objective: Objective, X: np.ndarray) -> Steps[np.ndarray]:
         for x in X:
             out.append((yield from _cost_or_inf(objective, x)))
         return np.array(out)
+    return _costs(R)
+
+
+def _costs(R: np.ndarray) -> np.ndarray:
+    """Sum of squares of each residual row of ``R``, infinite for a diverged (masked, NaN) row."""
     costs = np.array([float(r @ r) for r in R])
     return np.where(np.isnan(costs), np.inf, costs)
 
@@ -717,8 +722,7 @@ def choose(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: 
         without, share = refit_without(top)
         baseline = baseline.joined(without)
         pending = [replace(c, refit_without=True, effect_share=share.value, drives_ratio=share.drives_ratio,
-                           implausible=c.implausible or share.drives_worse) if c.name == top.name else c
-                   for c in pending]
+                           implausible=share.drives_worse) if c.name == top.name else c for c in pending]
 
 
 def name_one(candidates: Sequence[Candidate], baseline: Baseline, n: int, config: DiagnoseConfig,
@@ -911,8 +915,7 @@ def effect_share(c: Candidate, effect: Effect, holdout: Sequence[Run], weights: 
     # both models in one batch of the candidate's free set, the effect's entry at its inactive value
     held = Objective(list(holdout), c.params, weights)
     R = yield Evaluate(held, np.array(X_on + X_off), "mask")
-    costs = np.array([float(r @ r) for r in R])
-    costs = np.where(np.isnan(costs), np.inf, costs)  # a diverged rollout costs infinity, as in _cost_steps
+    costs = _costs(R)
     drives = np.array([sum(float(v @ v) for k, v in held.channels(r).items() if k != "head") for r in R])
     k = len(X_on)
     with np.errstate(divide="ignore", invalid="ignore"):
