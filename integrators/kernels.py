@@ -10,15 +10,19 @@ positions, velocities and ``J^T F`` against Pinocchio's own frame Jacobians to 1
 rollout's loop (:func:`rollout_loop`) calls Pinocchio's ABA (for the soft-constraint laws with
 the inverse mass matrix from the same pass) through :mod:`integrators.native`, so that the
 whole loop is compiled; a batch (:func:`batch_rollout_loop`) runs that loop for each of its
-environments on the worker threads.
+environments on the worker threads. Each contact law has a loop and a batch of its own
+(:data:`LAW_LOOPS`, :data:`LAW_BATCHES`), so that numba compiles, on first use, only the laws
+a user runs: one loop with every law's solver took 70 s to compile on a 2-core Xeon, the
+compliant ground's alone takes 18 s with its batch.
 
-The helpers of one physics step are inlined into the loops (``inline="always"``, numba's IR
-inlining), and they index the packed arrays (``chain_i[i, 0]``) rather than slice them: a call
-from one compiled function to another hands over each array, and a slice makes a view, each
+The helpers of one physics step are inlined into one compiled step (``inline="always"``,
+numba's IR inlining; :func:`_step`, which every contact law's loop calls), and they index the
+packed arrays (``chain_i[i, 0]``) rather than slice them: a call from one compiled function to
+another hands over each array, and a slice makes a view, each
 with an atomic reference-count increment and decrement (numba's ``NRT_incref``/``NRT_decref``).
 Those were about 10 % of a single rollout's step (perf) and more of a batch's, whose threads
 counted on the same read-only arrays (a cache line both cores then wrote at every step; each
-thread now reads copies of its own, :func:`batch_rollout_loop`). Inlined, numba's
+thread now reads copies of its own, :func:`_batch_rollout_loop`). Inlined, numba's
 reference-count pruning removes most of the rest. The arithmetic is the same, bit for bit. The
 soft-constraint laws' solvers stay out of line: inlined into the loop, the pyramid's made both
 laws slower. Within the elliptic cone's, the small helpers that its Newton iterations call
@@ -606,11 +610,16 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
                  chain_i, chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, act, scal, ground, chain_i, chain_R,
           chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record):
     """:func:`rollout_step` on the views of the workspace and of ``servo``'s rows (a loop makes
-    them once, not at every step: each view costs an atomic reference count)."""
+    them once, not at every step: each view costs an atomic reference count).
+
+    Compiled once and called by every contact law's loop (:data:`LAW_LOOPS`), not inlined into
+    each: the step's inlined helpers are most of a loop's compile time (about 15 s on a 2-core
+    Xeon, ``docs/benchmarks.md``), and the call costs no measurable time per step (its arrays
+    are views the loop made once)."""
     floating = plan[P_FLOATING] != 0
     if i > 0 and plan[P_INTEGRATE]:
         integrate(q, v, a, scal[S_DT], floating, q, v)
@@ -630,9 +639,8 @@ def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, ac
                     current, X, F, kin_R, kin_v)
 
 
-@njit(cache=True)
-def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, servo, torque_on, act, scal, ground,
-                 chain_i, chain_R, chain_f, feat_i, feat_f, tau, work, record, minv, body_weight, warm):
+@njit(cache=True, inline="always")
+def _rollout_loop(law, args):
     """Steps ``start`` to ``stop - 1`` of a rollout in one compiled loop: :func:`rollout_step`,
     then the acceleration ``a`` (nv,) that the next step integrates, by the contact law ``law``
     (:data:`LOOP_LAWS`): Pinocchio's ABA (:data:`integrators.native.ABA`) for the compliant
@@ -646,14 +654,23 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
     Returns ``(status, i)``: 0 and the last step done, or :func:`rollout_step`'s non-zero status
     at step ``i``. The loop ends after step ``plan[P_STEPS]`` (which only integrates and
     records). A caller runs the rollout in chunks to report progress between them.
+
+    ``law`` is a constant of each law's own loop (:data:`LAW_LOOPS`), which inlines this body:
+    numba prunes the branches of the other laws before it types them, so that a loop compiles
+    only its own law's solver (the soft laws' solvers are most of the compile time; each
+    condition compares ``law`` itself, which the pruning needs). ``args`` is the tuple of the
+    other arguments (numba inlines no call with ``*args``).
     """
+    (start, stop, aba_model, aba_data, plan, q, v, a, goals, servo, torque_on, act, scal, ground,
+     chain_i, chain_R, chain_f, feat_i, feat_f, tau, work, record, minv, body_weight, warm) = args
     X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
     integ, prev_err, duty, current = servo[0], servo[1], servo[2], servo[3]
     parents, vidx, f_body = chain_i[:, 0], chain_i[:, 2], feat_i[:, 0]  # the soft laws' columns
     # the arrays' addresses for Pinocchio, taken once (the loop updates the arrays in place)
     qp, vp, taup, ap, minvp = q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes
     floating = plan[P_FLOATING] != 0
-    scratch = soft_scratch(feat_i.shape[0] if law in (LAW_SOFT_PYRAMID, LAW_SOFT_ELLIPTIC) else 0, v.shape[0])
+    soft = law == LAW_SOFT_PYRAMID or law == LAW_SOFT_ELLIPTIC
+    scratch = soft_scratch(feat_i.shape[0] if soft else 0, v.shape[0])
     friction = friction_scratch(feat_i.shape[0] if law == LAW_COMPLIANT_IMPLICIT else 0, v.shape[0])
     elliptic = law == LAW_SOFT_ELLIPTIC
     cone_scratch = elliptic_scratch(feat_i.shape[0] if elliptic else 0, v.shape[0] if elliptic else 0)
@@ -669,7 +686,7 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
             if law == LAW_COMPLIANT_IMPLICIT:
                 implicit_friction_acceleration(v, minv, floating, parents, vidx, f_body, X, F, kin_R, kin_v, ground,
                                                scal[S_DT], a, friction)
-            elif elliptic:
+            elif law == LAW_SOFT_ELLIPTIC:
                 soft_elliptic_acceleration(v, minv, floating, parents, vidx, f_body, X, kin_R, kin_v, ground,
                                            body_weight, warm, a, scratch, cone_scratch)
             else:
@@ -678,24 +695,67 @@ def rollout_loop(start, stop, aba_model, aba_data, law, plan, q, v, a, goals, se
     return STATUS_OK, stop - 1
 
 
-@njit(cache=True, parallel=True)
-def batch_rollout_loop(aba_models, aba_data, law, PLAN, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
-                       ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, WEIGHT, WARM,
-                       status, failed_at):
+# One compiled loop per contact law (numba compiles a function on its first call, each with its
+# own on-disk cache): a user of one law compiles that law's solver alone. Each takes its
+# arguments as one tuple, from Python and from a batch alike: a ``*args`` signature is typed
+# ``StarArgTuple`` from Python and ``Tuple`` from compiled code, two copies of the loop to compile.
+@njit(cache=True)
+def compliant_loop(args):
+    """:func:`_rollout_loop` under the compliant ground (``LAW_COMPLIANT``)."""
+    return _rollout_loop(LAW_COMPLIANT, args)
+
+
+@njit(cache=True)
+def soft_pyramid_loop(args):
+    """:func:`_rollout_loop` under the soft-constraint law's pyramid (``LAW_SOFT_PYRAMID``)."""
+    return _rollout_loop(LAW_SOFT_PYRAMID, args)
+
+
+@njit(cache=True)
+def soft_elliptic_loop(args):
+    """:func:`_rollout_loop` under the soft-constraint law's elliptic cone (``LAW_SOFT_ELLIPTIC``)."""
+    return _rollout_loop(LAW_SOFT_ELLIPTIC, args)
+
+
+@njit(cache=True)
+def compliant_implicit_loop(args):
+    """:func:`_rollout_loop` under the compliant ground, its friction implicit
+    (``LAW_COMPLIANT_IMPLICIT``)."""
+    return _rollout_loop(LAW_COMPLIANT_IMPLICIT, args)
+
+
+def rollout_loop(start: int, stop: int, aba_model: int, aba_data: int, law: int, *args):
+    """:func:`_rollout_loop` for the law code ``law``, by that law's compiled loop
+    (:data:`LAW_LOOPS`); the arguments are :func:`_rollout_loop`'s."""
+    return LAW_LOOPS[law]((start, stop, aba_model, aba_data, *args))
+
+
+@njit(cache=True, inline="always")
+def _batch_rollout_loop(law, aba_models, aba_data, PLAN, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
+                        ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, WEIGHT, WARM,
+                        status, failed_at):
     """Every environment ``e`` of a batch (rows of the arrays) through a whole rollout, one
-    environment per thread at a time: :func:`rollout_loop` on ``Q[e]``, ``V[e]``, ... with the
-    goal sequence ``goals[:, goal_index[e]]`` (n_ticks, G, nj), its own plan ``PLAN[e]``
-    (environments may run for different numbers of steps) and the native
+    environment per thread at a time: the law's loop (:data:`LAW_LOOPS`) on ``Q[e]``, ``V[e]``,
+    ... with the goal sequence ``goals[:, goal_index[e]]`` (n_ticks, G, nj), its own plan
+    ``PLAN[e]`` (environments may run for different numbers of steps) and the native
     handles ``aba_models[e]``, ``aba_data[e]`` (one workspace per environment), recording into
     ``RECORD[e]`` (n_rec, nq + nv + nj; an environment with fewer steps leaves the rows after its
     last record as they were). The environments are independent, so each runs its
     whole rollout without meeting the others at every step (no parallel region per step, no
-    trip through the interpreter per step); each one's arithmetic is :func:`rollout_loop`'s.
+    trip through the interpreter per step); each one's arithmetic is :func:`_rollout_loop`'s.
     The threads take the environments in any order (the batch hands them out one at a time).
 
-    ``status[e]``, ``failed_at[e]``: :func:`rollout_loop`'s status and the step it stopped at
+    ``status[e]``, ``failed_at[e]``: :func:`_rollout_loop`'s status and the step it stopped at
     (0 and the last step when it finished); an environment that fails stops there, its state
     and workspace left as they were at the failure.
+
+    Each law's batch (:data:`LAW_BATCHES`) inlines this body with ``law`` a constant, so that it
+    calls that law's compiled loop alone. Its arrays are parameters of their own, not a tuple's
+    items as the loops take them: numba 0.68's parallel loop drops the writes to an array it took
+    from a tuple (``tests/test_batch.py`` caught it: the final states stayed the initial ones).
+    The loop's first step is ``np.int64(0)``, not ``0``: numba types a literal argument as
+    ``Literal[int](0)`` and compiles a copy of the loop for it (most of a batch's compile time
+    before).
 
     It lives in this file because numba's on-disk cache of a function is invalidated only by
     changes to the file that defines it: a batch kernel in another module kept running an old,
@@ -705,20 +765,75 @@ def batch_rollout_loop(aba_models, aba_data, law, PLAN, Q, V, A, goals, goal_ind
         # the state and workspaces a step writes, in arrays of this thread's own: rows of the
         # batch's arrays are a few cache lines, and neighbouring rows stepped on two threads at
         # once would share one, written at every step (false sharing)
-        q, v, a, servo, tau, work = Q[e].copy(), V[e].copy(), A[e].copy(), SERVO[e].copy(), TAU[e].copy(), WORK[e].copy()
-        minv, warm = MINV[e].copy(), WARM[e].copy()
+        q, v, a, servo, tau = Q[e].copy(), V[e].copy(), A[e].copy(), SERVO[e].copy(), TAU[e].copy()
+        work, minv, warm = WORK[e].copy(), MINV[e].copy(), WARM[e].copy()
         # and the arrays a step reads, too: every view a step takes of an array counts a reference
         # on it (atomically), and two threads counting on one shared array write one cache line
-        s, i = rollout_loop(0, PLAN[e, P_STEPS] + 1, aba_models[e], aba_data[e], law, PLAN[e].copy(), q, v, a,
-                            goals[:, goal_index[e]].copy(), servo, torque_on.copy(), act[e].copy(), scal.copy(),
-                            ground[e].copy(), chain_i.copy(), chain_R.copy(), chain_f.copy(), feat_i.copy(),
-                            feat_f.copy(), tau, work, RECORD[e], minv, WEIGHT[e].copy(), warm)
+        args = (np.int64(0), PLAN[e, P_STEPS] + 1, aba_models[e], aba_data[e], PLAN[e].copy(), q, v, a,
+                goals[:, goal_index[e]].copy(), servo, torque_on.copy(), act[e].copy(), scal.copy(),
+                ground[e].copy(), chain_i.copy(), chain_R.copy(), chain_f.copy(), feat_i.copy(),
+                feat_f.copy(), tau, work, RECORD[e], minv, WEIGHT[e].copy(), warm)
+        if law == LAW_COMPLIANT:
+            s, i = compliant_loop(args)
+        elif law == LAW_SOFT_PYRAMID:
+            s, i = soft_pyramid_loop(args)
+        elif law == LAW_SOFT_ELLIPTIC:
+            s, i = soft_elliptic_loop(args)
+        else:
+            s, i = compliant_implicit_loop(args)
         Q[e], V[e], A[e], SERVO[e], TAU[e], WORK[e], MINV[e], WARM[e] = q, v, a, servo, tau, work, minv, warm
         status[e] = s
         failed_at[e] = i
 
 
-#: MuJoCo's default constraint impedance ``solimp`` (d0, d_width, width [m], midpoint, power) and
+@njit(cache=True, parallel=True)
+def compliant_batch(aba_models, aba_data, PLAN, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
+    ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, WEIGHT, WARM, status, failed_at):
+    """:func:`_batch_rollout_loop` under the compliant ground (``LAW_COMPLIANT``)."""
+    _batch_rollout_loop(LAW_COMPLIANT, aba_models, aba_data, PLAN, Q, V, A, goals, goal_index, SERVO,
+                        torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK,
+                        RECORD, MINV, WEIGHT, WARM, status, failed_at)
+
+
+@njit(cache=True, parallel=True)
+def soft_pyramid_batch(aba_models, aba_data, PLAN, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
+    ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, WEIGHT, WARM, status, failed_at):
+    """:func:`_batch_rollout_loop` under the soft-constraint law's pyramid (``LAW_SOFT_PYRAMID``)."""
+    _batch_rollout_loop(LAW_SOFT_PYRAMID, aba_models, aba_data, PLAN, Q, V, A, goals, goal_index, SERVO,
+                        torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK,
+                        RECORD, MINV, WEIGHT, WARM, status, failed_at)
+
+
+@njit(cache=True, parallel=True)
+def soft_elliptic_batch(aba_models, aba_data, PLAN, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
+    ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, WEIGHT, WARM, status, failed_at):
+    """:func:`_batch_rollout_loop` under the soft-constraint law's elliptic cone (``LAW_SOFT_ELLIPTIC``)."""
+    _batch_rollout_loop(LAW_SOFT_ELLIPTIC, aba_models, aba_data, PLAN, Q, V, A, goals, goal_index, SERVO,
+                        torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK,
+                        RECORD, MINV, WEIGHT, WARM, status, failed_at)
+
+
+@njit(cache=True, parallel=True)
+def compliant_implicit_batch(aba_models, aba_data, PLAN, Q, V, A, goals, goal_index, SERVO, torque_on, act, scal,
+    ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK, RECORD, MINV, WEIGHT, WARM, status, failed_at):
+    """:func:`_batch_rollout_loop` under the compliant ground, its friction implicit
+    (``LAW_COMPLIANT_IMPLICIT``)."""
+    _batch_rollout_loop(LAW_COMPLIANT_IMPLICIT, aba_models, aba_data, PLAN, Q, V, A, goals, goal_index, SERVO,
+                        torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f, TAU, WORK,
+                        RECORD, MINV, WEIGHT, WARM, status, failed_at)
+
+
+def batch_rollout_loop(aba_models: np.ndarray, aba_data: np.ndarray, law: int, *args) -> None:
+    """:func:`_batch_rollout_loop` for the law code ``law``, by that law's compiled batch
+    (:data:`LAW_BATCHES`); the arguments are :func:`_batch_rollout_loop`'s."""
+    LAW_BATCHES[law](aba_models, aba_data, *args)
+
+
+#: Each law code's compiled loop and batch (the codes index these tuples).
+LAW_LOOPS = (compliant_loop, soft_pyramid_loop, soft_elliptic_loop, compliant_implicit_loop)
+LAW_BATCHES = (compliant_batch, soft_pyramid_batch, soft_elliptic_batch, compliant_implicit_batch)
+
+
 #: ``solref`` damping ratio: the soft-constraint contact law's fixed shape (:func:`soft_contact_acceleration`).
 SOFT_SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)
 SOFT_DAMPRATIO = 1.0
