@@ -31,6 +31,7 @@ test: $(STAMP)
 # the MuJoCo fits and the diagnosis accuracy dominate. Each writes its table to benchmarks/results/.
 bench: $(STAMP)
 	$(PY) benchmarks/sim_speed.py
+	$(PY) benchmarks/first_run.py
 	$(PY) benchmarks/fault_matrix.py
 	$(PY) benchmarks/run_io.py
 	$(PY) benchmarks/fit_speed.py

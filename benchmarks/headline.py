@@ -70,6 +70,18 @@ def _speed(doc: dict) -> list[tuple[str, str, str]]:
     return out
 
 
+def _first_run(doc: dict) -> list[tuple[str, str, str]]:
+    cold = {r["case"]: r for r in doc["rows"] if r["cache"] == "cold"}
+    warm = {r["case"]: r for r in doc["rows"] if r["cache"] == "warm"}
+    laws = [c for c in cold if c.startswith(("compliant", "soft"))]
+    text = "; ".join(f"{c} {cold[c]['wall_s']:.0f} s" for c in laws)
+    cli = "cobra simulate --duration 1"
+    if cli in cold:
+        text += f"; `{cli}` {cold[cli]['wall_s']:.0f} s ({warm[cli]['wall_s']:.1f} s once cached)"
+    return [("first run on a machine, numba compiling the kernels (a fresh process: a contact law's first rollout "
+             "and batch; the command)", text, "-")]
+
+
 def _not_hidden(rows: list[dict]) -> str:
     """``N of M``: how many of ``rows`` (hidden-effect and pair rows) name an effect that was not
     hidden, with the effects they name so (issue 16: name only what is there)."""
@@ -302,7 +314,7 @@ def _faults(doc: dict) -> list[tuple[str, str, str]]:
 
 #: Results file -> how its headline rows are read.
 SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
-    "sim_speed": _speed, "fit_speed": _fit_speed, "diagnose_matrix": _matrix, "diagnose_matrix_current": _matrix,
+    "sim_speed": _speed, "first_run": _first_run, "fit_speed": _fit_speed, "diagnose_matrix": _matrix, "diagnose_matrix_current": _matrix,
     "diagnose_matrix_soft_constraint": _matrix, "diagnose_matrix_choose": _matrix,
     "diagnose_matrix_soft_constraint_stiff": _matrix, "effect_signal": _signal,
     "diagnose_accuracy": _accuracy,
