@@ -13,7 +13,7 @@ whole loop is compiled; a batch (:func:`batch_rollout_loop`) runs that loop for 
 environments on the worker threads. Each contact law has a loop and a batch of its own
 (:data:`LAW_LOOPS`, :data:`LAW_BATCHES`), so that numba compiles, on first use, only the laws
 a user runs: one loop with every law's solver took 70 s to compile on a 2-core Xeon, the
-compliant ground's alone takes 18 s with its batch.
+compliant ground's takes 17 s and its batch 15 s more (``benchmarks/results/first_run.md``).
 
 The helpers of one physics step are inlined into one compiled step (``inline="always"``,
 numba's IR inlining; :func:`_step`, which every contact law's loop calls), and they index the
@@ -617,7 +617,7 @@ def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, ac
     them once, not at every step: each view costs an atomic reference count).
 
     Compiled once and called by every contact law's loop (:data:`LAW_LOOPS`), not inlined into
-    each: the step's inlined helpers are most of a loop's compile time (about 15 s on a 2-core
+    each: the step's inlined helpers are most of a loop's compile time (about 13 s on a 2-core
     Xeon, ``docs/benchmarks.md``), and the call costs no measurable time per step (its arrays
     are views the loop made once)."""
     floating = plan[P_FLOATING] != 0
@@ -724,7 +724,7 @@ def compliant_implicit_loop(args):
     return _rollout_loop(LAW_COMPLIANT_IMPLICIT, args)
 
 
-def rollout_loop(start: int, stop: int, aba_model: int, aba_data: int, law: int, *args):
+def rollout_loop(start: int, stop: int, aba_model: int, aba_data: int, law: int, *args) -> tuple[int, int]:
     """:func:`_rollout_loop` for the law code ``law``, by that law's compiled loop
     (:data:`LAW_LOOPS`); the arguments are :func:`_rollout_loop`'s."""
     return LAW_LOOPS[law]((start, stop, aba_model, aba_data, *args))
