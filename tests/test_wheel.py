@@ -5,9 +5,17 @@ without dependencies into a fresh virtual environment whose dependencies come fr
 ``.pth`` line: no network). From a directory outside the checkout, ``CobraModel.load()`` must find
 the URDF shipped in the wheel, ``cobra simulate`` must run, and ``cobra demo --skip-diagnose`` must
 read the shipped reference dataset; the example bus configuration must be in the wheel as well.
+
+The fresh environment's numba cache starts empty, so its first rollout also shows what a new
+user's compiles: a compliant-ground rollout and batch compile no other contact law's solver or
+loop (each law's loop prunes the others' branches, ``integrators.kernels.LAW_LOOPS``) and one
+copy of the compliant loop, which the batch reuses. Either regression puts tens of seconds back
+on every first run and on each test worker (``docs/benchmarks.md``, "The first rollout on a
+machine compiles the kernels").
 """
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -87,6 +95,36 @@ def test_the_model_loads_from_the_wheel_not_the_checkout(installed):
     env_dir = bin_dir.parent.resolve()
     for path in paths:
         assert Path(path).resolve().is_relative_to(env_dir) and Path(path).exists(), (path, env_dir)
+
+
+#: A compliant rollout and batch in the fresh environment; prints what numba compiled (JSON).
+FIRST_ROLLOUT = """
+import json
+import numpy as np
+import integrators.kernels as K
+from cobra_model import CobraModel, ModelParameters
+from integrators import Simulator
+from integrators.batch import BatchSimulator
+model, params = CobraModel.load(), ModelParameters.nominal()
+sim = Simulator(model, params)
+state = sim.rest_state()
+goals = np.zeros((20, model.n_joints))
+sim.rollout(state, goals, 0.01)
+BatchSimulator(model, [params, params]).rollout([state, state], np.repeat(goals[:, None], 2, axis=1), 0.01)
+others = ("soft_contact_acceleration", "soft_elliptic_acceleration", "implicit_friction_acceleration",
+          "soft_pyramid_loop", "soft_elliptic_loop", "compliant_implicit_loop")
+print(json.dumps({"compiled": [n for n in others if getattr(K, n).signatures],
+                  "compliant_loops": len(K.compliant_loop.signatures),
+                  "from_cache": sum(f.stats.cache_hits.total() for f in (K.compliant_loop, K.compliant_batch))}))
+"""
+
+
+def test_a_first_rollout_compiles_its_own_contact_law_only(installed):
+    bin_dir, work = installed
+    report = json.loads(_run([str(bin_dir / "python"), "-c", FIRST_ROLLOUT], cwd=work, env=_env()).splitlines()[-1])
+    assert report["from_cache"] == 0  # compiled in this process: what it compiled is below
+    assert report["compiled"] == []
+    assert report["compliant_loops"] == 1
 
 
 def test_cobra_simulate_and_the_demo_run_from_the_wheel(installed):
