@@ -71,6 +71,7 @@ def _speed(doc: dict) -> list[tuple[str, str, str]]:
 
 
 def _first_run(doc: dict) -> list[tuple[str, str, str]]:
+    """Each contact law's cold process (first rollout and batch compiled) and the command's."""
     cold = {r["case"]: r for r in doc["rows"] if r["cache"] == "cold"}
     warm = {r["case"]: r for r in doc["rows"] if r["cache"] == "warm"}
     laws = [c for c in cold if c.startswith(("compliant", "soft"))]
@@ -314,7 +315,8 @@ def _faults(doc: dict) -> list[tuple[str, str, str]]:
 
 #: Results file -> how its headline rows are read.
 SOURCES: dict[str, Callable[[dict], list[tuple[str, str, str]]]] = {
-    "sim_speed": _speed, "first_run": _first_run, "fit_speed": _fit_speed, "diagnose_matrix": _matrix, "diagnose_matrix_current": _matrix,
+    "sim_speed": _speed, "first_run": _first_run, "fit_speed": _fit_speed, "diagnose_matrix": _matrix,
+    "diagnose_matrix_current": _matrix,
     "diagnose_matrix_soft_constraint": _matrix, "diagnose_matrix_choose": _matrix,
     "diagnose_matrix_soft_constraint_stiff": _matrix, "effect_signal": _signal,
     "diagnose_accuracy": _accuracy,
