@@ -657,9 +657,10 @@ def _rollout_loop(law, args):
 
     ``law`` is a constant of each law's own loop (:data:`LAW_LOOPS`), which inlines this body:
     numba prunes the branches of the other laws before it types them, so that a loop compiles
-    only its own law's solver (the soft laws' solvers are most of the compile time; each
-    condition compares ``law`` itself, which the pruning needs). ``args`` is the tuple of the
-    other arguments (numba inlines no call with ``*args``).
+    only its own law's solver (the soft laws' solvers are most of the compile time). The
+    pruning needs ``law`` to be a constant of the loop: a law read at run time compiles every
+    solver into it again (``tests/test_wheel.py`` checks). ``args`` is the tuple of the other
+    arguments (numba inlines no call with ``*args``).
     """
     (start, stop, aba_model, aba_data, plan, q, v, a, goals, servo, torque_on, act, scal, ground,
      chain_i, chain_R, chain_f, feat_i, feat_f, tau, work, record, minv, body_weight, warm) = args
