@@ -835,6 +835,7 @@ LAW_LOOPS = (compliant_loop, soft_pyramid_loop, soft_elliptic_loop, compliant_im
 LAW_BATCHES = (compliant_batch, soft_pyramid_batch, soft_elliptic_batch, compliant_implicit_batch)
 
 
+#: MuJoCo's default constraint impedance ``solimp`` (d0, d_width, width [m], midpoint, power) and
 #: ``solref`` damping ratio: the soft-constraint contact law's fixed shape (:func:`soft_contact_acceleration`).
 SOFT_SOLIMP = (0.9, 0.95, 0.001, 0.5, 2.0)
 SOFT_DAMPRATIO = 1.0
