@@ -70,7 +70,8 @@ def run(args: argparse.Namespace) -> int:
         t = result.timing
         print(f"{result.samples} samples, {t.cycles} cycles at {t.achieved_rate_hz:.2f} Hz "
               f"(requested {t.requested_rate_hz:g}), period jitter {1e3 * t.period_std_s:.2f} ms, "
-              f"max lateness {1e3 * t.lateness_max_s:.2f} ms, {t.skipped_cycles} skipped")
+              f"max lateness {1e3 * t.lateness_max_s:.2f} ms, {t.skipped_cycles} skipped, "
+              f"{result.comm.reads_failed} failed reads")
     if result.path is not None:
         print(f"wrote {result.path}" + ("" if result.status is StopReason.COMPLETED else " (partial run)"))
     if result.status is StopReason.COMPLETED:

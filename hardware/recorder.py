@@ -46,7 +46,8 @@ from cobra_model.run import Q_REF_BETWEEN_SAMPLES
 from hardware import control_table as ct
 from hardware.config import BusConfig, estimated_bus_time_s
 from hardware.control_table import OperatingMode, describe_hardware_error
-from hardware.driver import BusError, ConnectError, Disconnected, DynamixelBus, JointState, TorqueOffReport
+from hardware.driver import (BusError, CommStats, ConnectError, Disconnected, DynamixelBus, JointState,
+                             TorqueOffReport)
 from hardware.runwriter import IncrementalRunWriter, RunWriteError, check_run_path
 from hardware.units import joint_to_servo_rad, rad_to_pulses
 
@@ -121,6 +122,8 @@ class RecordResult:
         samples: rows written.
         timing: loop timing of the recording phase (None if it never started).
         torque: outcome of the final torque off.
+        comm: the driver's read counters at the stop (the same as the sidecar's ``comm``, which
+            a full disk can leave unwritten).
         signal_name: the terminating signal (``"SIGTERM"``, ``"SIGHUP"``) when ``status`` is
             ``TERMINATED``.
     """
@@ -131,6 +134,7 @@ class RecordResult:
     samples: int
     timing: TimingReport | None
     torque: TorqueOffReport
+    comm: CommStats
     signal_name: str | None = None
 
 
@@ -431,7 +435,7 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
         raise unexpected
     return RecordResult(status=status, message=message, path=writer.path if writer else None,
                         samples=writer.rows if writer else 0, timing=report, torque=torque,
-                        signal_name=handler.received[0] if status is StopReason.TERMINATED else None)
+                        comm=dataclasses.replace(bus.stats), signal_name=handler.received[0] if status is StopReason.TERMINATED else None)
 
 
 def _run_session(bus: DynamixelBus, session: _Session, config: BusConfig, gait: Gait, duration_s: float,

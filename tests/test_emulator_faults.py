@@ -455,5 +455,9 @@ def test_a_full_disk_stops_with_torque_off_and_keeps_what_was_written(tmp_path: 
     assert run.n_samples == 20 == result.samples
     assert run.meta["notes"] == [UNFINISHED_NOTE]
     assert_comparable(run)
-    # the 21st sample was received but could not be written; nothing after it was read
-    assert emu.stats().intact_sync_reads[ct.PRESENT_STATE_ADDRESS] - 1 == 21
+    # the 21st sample was received but could not be written; nothing after it was read. The
+    # emulator may have sent more intact replies than that: those the driver gave up waiting for
+    # (a loaded host), each a failed read.
+    assert result.comm.reads_ok - 1 == 21, result.comm
+    sent = emu.stats().intact_sync_reads[ct.PRESENT_STATE_ADDRESS] - 1
+    assert sent - result.comm.reads_failed <= 21 <= sent, (sent, result.comm)
