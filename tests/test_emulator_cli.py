@@ -91,9 +91,12 @@ def test_record_on_the_emulator(tmp_path: Path, emulate, capsys) -> None:
     args = parse(cmd_record, ["record", "--config", str(EXAMPLE), "--port", str(link), "--freq", "0.5",
                               "--duration", "1", "--settle", "0.2", "--out", str(out)])
     assert args.func(args) == 0
-    assert "torque off on all 11 servos" in capsys.readouterr().out
+    printed = capsys.readouterr().out
+    assert "torque off on all 11 servos" in printed
     run = read_run(out)
     assert run.meta["source"] == "emulator" and run.n_samples > 40
+    # the summary's failed reads are the driver's, as the sidecar keeps them
+    assert f", {run.meta['comm']['reads_failed']} failed reads\n" in printed, printed
     # a fresh recording has no motion capture: `cobra compare` gives the joint metrics only
     plots = tmp_path / "plots"
     args = parse(cmd_compare, ["compare", str(out), "--json", "--plots", str(plots)])
