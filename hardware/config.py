@@ -371,11 +371,13 @@ def load_bus_config(path: str | Path) -> BusConfig:
     """Read and validate a bus configuration from a ``.toml``, ``.yaml`` or ``.yml`` file.
 
     Raises:
-        InputError: unreadable or invalid file (the message names the file and the key).
-        FileNotFoundError: no such file.
+        InputError: no such file, or an unreadable or invalid one (the message names the file
+            and the key).
     """
     path = Path(path)
     suffix = path.suffix.lower()
+    if not path.is_file():
+        raise InputError(f"{path}: no such bus configuration file")
     if suffix == ".toml":
         try:
             with path.open("rb") as fh:
