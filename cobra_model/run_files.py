@@ -149,13 +149,17 @@ class CsvTable:
         if not missing:
             return
         unknown = self.unknown_columns()
-        parts = []
+        parts, plain = [], []
         for name in missing:
             guess = closest_name(name, unknown)
-            text = f"missing required column {name!r}"
-            if guess is not None:
-                text += f" (the file has {guess!r}: did you mean {name!r}?)"
-            parts.append(text)
+            if guess is None:
+                plain.append(name)
+            else:
+                parts.append(f"missing required column {name!r} (the file has {guess!r}: did you mean {name!r}?)")
+        if len(plain) == 1:
+            parts.insert(0, f"missing required column {plain[0]!r}")
+        elif plain:
+            parts.insert(0, f"missing required columns {', '.join(joint_ranges(plain))}")
         shown = "; ".join(parts[:12]) + ("; ..." if len(parts) > 12 else "")
         joint_note = self._joint_count_note(missing)
         raise InputError(f"{self.path}: {shown}{joint_note}")
@@ -187,6 +191,32 @@ class CsvTable:
             )
         return bool(present)
 
+
+
+def joint_ranges(names: Sequence[str]) -> list[str]:
+    """``names`` with each run of consecutive joint columns of one prefix shortened to its ends
+    (``q_ref_1``, ..., ``q_ref_11`` -> ``q_ref_1..q_ref_11``), other names as they are, in order."""
+    out: list[str] = []
+    run: list[tuple[str, int]] = []  # (prefix, joint number) of the run being built
+
+    def close() -> None:
+        if run:
+            (prefix, first), (_, last) = run[0], run[-1]
+            out.append(f"{prefix}_{first}" if first == last else f"{prefix}_{first}..{prefix}_{last}")
+            run.clear()
+
+    for name in names:
+        match = JOINT_COLUMN_RE.match(name)
+        if match and run and run[-1][0] == match.group(1) and run[-1][1] + 1 == int(match.group(2)):
+            run.append((match.group(1), int(match.group(2))))
+            continue
+        close()
+        if match:
+            run.append((match.group(1), int(match.group(2))))
+        else:
+            out.append(name)
+    close()
+    return out
 
 def read_csv_table(path: str | Path) -> CsvTable:
     """Read a comma-separated file with one header row into raw cell strings.

@@ -270,6 +270,8 @@ BAD_FILES: dict[str, tuple[Corrupt, list[str]]] = {
     "q_12 present": (_add("q_12"), ["'q_12'", "11 joints"]),
     "q_ref_0 present": (_add("q_ref_0"), ["'q_ref_0'", "11 joints"]),
     "q_11 missing": (_drop("q_11"), ["'q_11'", "found 10 q_* joint columns", "11 joints"]),
+    "q_ref_2..q_ref_11 and q_5 missing": (_both(*(_drop(f"q_ref_{i}") for i in range(2, 12)), _drop("q_5")),
+                                          ["missing required columns q_ref_2..q_ref_11, q_5 (found 1 q_ref_*"]),
     "current_12 present": (_add("current_12"), ["'current_12'", "11 joints"]),
     "partial dq group": (_both(_add("dq_1"), _add("dq_2")), ["dq_3", "all present or all absent"]),
     "partial body": (_both(_add("tail_x"), _add("tail_y")), ["tail_z", "'tail'"]),
