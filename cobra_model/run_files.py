@@ -192,7 +192,6 @@ class CsvTable:
         return bool(present)
 
 
-
 def joint_ranges(names: Sequence[str]) -> list[str]:
     """``names`` with each run of consecutive joint columns of one prefix shortened to its ends
     (``q_ref_1``, ..., ``q_ref_11`` -> ``q_ref_1..q_ref_11``), other names as they are, in order."""
@@ -217,6 +216,7 @@ def joint_ranges(names: Sequence[str]) -> list[str]:
             out.append(name)
     close()
     return out
+
 
 def read_csv_table(path: str | Path) -> CsvTable:
     """Read a comma-separated file with one header row into raw cell strings.

@@ -435,7 +435,8 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
         raise unexpected
     return RecordResult(status=status, message=message, path=writer.path if writer else None,
                         samples=writer.rows if writer else 0, timing=report, torque=torque,
-                        comm=dataclasses.replace(bus.stats), signal_name=handler.received[0] if status is StopReason.TERMINATED else None)
+                        comm=dataclasses.replace(bus.stats),
+                        signal_name=handler.received[0] if status is StopReason.TERMINATED else None)
 
 
 def _run_session(bus: DynamixelBus, session: _Session, config: BusConfig, gait: Gait, duration_s: float,
