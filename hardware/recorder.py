@@ -417,6 +417,7 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
         status, reason = StopReason.ERROR, f"unexpected error: {type(exc).__name__}: {exc}"
         unexpected = exc
     torque = _shutdown(bus)
+    comm = dataclasses.replace(bus.stats)  # the counters at the stop, for the sidecar and the result
     report = timing.report(config.control_rate_hz) if timing.starts else None
     if status is StopReason.DISCONNECTED and torque.port_error is not None:
         message = f"{reason}; torque off could NOT be sent: the servos hold their last goal, cut their power"
@@ -426,7 +427,7 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
         notes = [] if status is StopReason.COMPLETED else [f"partial run: {reason}"]
         writer.close(notes=notes, meta={
             "timing": report.to_json() if report else None,
-            "comm": {**dataclasses.asdict(bus.stats), "samples": writer.count_rows()},
+            "comm": {**dataclasses.asdict(comm), "samples": writer.count_rows()},
             "stop": {"status": status.value, "message": message},
         })
         if writer.sidecar_error:
@@ -435,7 +436,7 @@ def _record(config: BusConfig, gait: Gait, duration_s: float, out_path: Path, fo
         raise unexpected
     return RecordResult(status=status, message=message, path=writer.path if writer else None,
                         samples=writer.rows if writer else 0, timing=report, torque=torque,
-                        comm=dataclasses.replace(bus.stats),
+                        comm=comm,
                         signal_name=handler.received[0] if status is StopReason.TERMINATED else None)
 
 
