@@ -371,13 +371,13 @@ def load_bus_config(path: str | Path) -> BusConfig:
     """Read and validate a bus configuration from a ``.toml``, ``.yaml`` or ``.yml`` file.
 
     Raises:
-        InputError: no such file, or an unreadable or invalid one (the message names the file
-            and the key).
+        InputError: unreadable or invalid file (the message names the file and the key).
+        FileNotFoundError: no such file (naming it, as :meth:`cobra_model.parameters.ModelParameters.load` does).
     """
     path = Path(path)
     suffix = path.suffix.lower()
     if not path.is_file():
-        raise InputError(f"{path}: no such bus configuration file")
+        raise FileNotFoundError(f"bus configuration {path} does not exist")
     if suffix == ".toml":
         try:
             with path.open("rb") as fh:
