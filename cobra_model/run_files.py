@@ -195,27 +195,21 @@ class CsvTable:
 def joint_ranges(names: Sequence[str]) -> list[str]:
     """``names`` with each run of consecutive joint columns of one prefix shortened to its ends
     (``q_ref_1``, ..., ``q_ref_11`` -> ``q_ref_1..q_ref_11``), other names as they are, in order."""
-    out: list[str] = []
-    run: list[tuple[str, int]] = []  # (prefix, joint number) of the run being built
-
-    def close() -> None:
-        if run:
-            (prefix, first), (_, last) = run[0], run[-1]
-            out.append(f"{prefix}_{first}" if first == last else f"{prefix}_{first}..{prefix}_{last}")
-            run.clear()
-
+    spans: list[str | tuple[str, int, int]] = []  # a name, or (prefix, first joint, last joint)
     for name in names:
         match = JOINT_COLUMN_RE.match(name)
-        if match and run and run[-1][0] == match.group(1) and run[-1][1] + 1 == int(match.group(2)):
-            run.append((match.group(1), int(match.group(2))))
+        if match is None:
+            spans.append(name)
             continue
-        close()
-        if match:
-            run.append((match.group(1), int(match.group(2))))
+        prefix, joint = match.group(1), int(match.group(2))
+        last = spans[-1] if spans else None
+        if isinstance(last, tuple) and last[0] == prefix and last[2] + 1 == joint:
+            spans[-1] = (prefix, last[1], joint)
         else:
-            out.append(name)
-    close()
-    return out
+            spans.append((prefix, joint, joint))
+    return [span if isinstance(span, str)
+            else f"{span[0]}_{span[1]}" + (f"..{span[0]}_{span[2]}" if span[2] > span[1] else "")
+            for span in spans]
 
 
 def read_csv_table(path: str | Path) -> CsvTable:
