@@ -91,6 +91,13 @@ def run(args: argparse.Namespace) -> int:
     if args.method == "ppo" and (args.envs < 1 or args.timesteps < 1):
         raise InputError(f"--envs and --timesteps must be >= 1 (PPO's environments and steps), got "
                          f"{args.envs} and {args.timesteps}")
+    if args.budget_seconds is not None and not args.budget_seconds > 0:
+        raise InputError(f"--budget-seconds must be > 0 s (the fit's wall-time budget), got {args.budget_seconds:g}")
+    if args.max_iterations < 1:
+        raise InputError(f"--max-iterations must be >= 1 (least squares' Jacobian evaluations), got "
+                         f"{args.max_iterations}")
+    if args.workers < 1:
+        raise InputError(f"--workers must be >= 1 (local processes for evaluations), got {args.workers}")
     train_paths, val_paths = expand(args.runs)
     val_paths += [Path(p) for p in args.holdout]
     if not train_paths:

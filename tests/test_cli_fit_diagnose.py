@@ -351,6 +351,21 @@ def test_fit_ppo_refuses_no_environments_or_steps(tmp_path, capsys, option):
     assert "--envs and --timesteps must be >= 1" in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.parametrize("option, message", [
+    (["--budget-seconds", "-5"], "--budget-seconds must be > 0 s (the fit's wall-time budget), got -5"),
+    (["--budget-seconds", "nan"], "--budget-seconds must be > 0 s (the fit's wall-time budget), got nan"),
+    (["--max-iterations", "0"], "--max-iterations must be >= 1 (least squares' Jacobian evaluations), got 0"),
+    (["--workers", "0"], "--workers must be >= 1 (local processes for evaluations), got 0"),
+])
+def test_fit_refuses_a_budget_iterations_or_workers_out_of_range(tmp_path, capsys, option, message):
+    """Before this check a budget of no time returned the start (after the one Jacobian its
+    intervals need), ``--max-iterations 0`` quietly ran one iteration and ``--workers 0`` ran
+    in-process: each a fit the user did not ask for, said nowhere."""
+    out = tmp_path / "never.json"
+    assert main(["fit", str(tmp_path / "run.csv"), *option, "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err and not out.exists()
+
+
 def test_fit_ppo_refuses_residual_channel_weights(tmp_path, capsys):
     out = tmp_path / "never.json"
     assert main(["fit", str(tmp_path / "run.csv"), "--method", "ppo", "--channel-weights", "residual",
