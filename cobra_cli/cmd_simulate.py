@@ -11,7 +11,7 @@ from cobra_model.errors import InputError
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.run_files import read_run, write_run
-from integrators.simulate import simulate_gait, simulate_like
+from integrators.simulate import record_period, simulate_gait, simulate_like
 from integrators.simulator import SCHEMES, STEPS_PER_CONTACT_TIME_CONSTANT, SimSettings, Simulator, contact_resolved
 from sysid.discrepancy.effects import EffectLibrary, parse_effects
 
@@ -56,10 +56,16 @@ def run(args: argparse.Namespace) -> int:
             settings = contact_resolved(settings, params)
     except ValueError as exc:
         raise InputError(f"--dt/--control-dt/--scheme: {exc}") from None
-    if args.duration <= 0:
+    if not (np.isfinite(args.duration) and args.duration > 0):
         raise InputError(f"--duration must be > 0 s, got {args.duration}")
+    if not np.isfinite(args.heading):
+        raise InputError(f"--heading must be a finite angle [deg], got {args.heading}")
     sim = Simulator(CobraModel.load(), params, settings)
     sim.check_steps()
+    try:
+        every = record_period(args.rate, settings.dt)
+    except InputError as exc:
+        raise InputError(f"--rate: {exc}") from None
     with progress_bar("simulating") as bar:
         if args.from_run:
             result = simulate_like(read_run(args.from_run), simulator=sim, progress=bar)
@@ -71,4 +77,9 @@ def run(args: argparse.Namespace) -> int:
     h0, h1 = result.head_pos[0], result.head_pos[-1]
     print(f"wrote {out} ({len(result.t)} samples, {result.t[-1] - result.t[0]:.2f} s); head moved from "
           f"({h0[0]:.3f}, {h0[1]:.3f}) to ({h1[0]:.3f}, {h1[1]:.3f}) m")
+    rate = 1.0 / (every * settings.dt)
+    if not args.from_run and abs(rate - args.rate) > 1e-6 * args.rate:
+        steps = "every physics step" if every == 1 else f"every {every} physics steps"
+        print(f"note: sampled at {rate:.4g} Hz, one sample {steps} of {settings.dt:g} s "
+              f"(the nearest to --rate {args.rate:g} Hz)")
     return 0

@@ -16,6 +16,7 @@ from typing import Callable
 import numpy as np
 from scipy.interpolate import Akima1DInterpolator
 
+from cobra_model.errors import InputError
 from cobra_model.gait import SidewindingGait
 from cobra_model.model import CobraModel
 from cobra_model.parameters import ModelParameters
@@ -159,6 +160,18 @@ def _meta(params: ModelParameters, settings: SimSettings, gait: dict | None, not
     return meta
 
 
+def record_period(sample_rate_hz: float, dt: float) -> int:
+    """Physics steps of ``dt`` [s] per sample of a run sampled at ``sample_rate_hz`` [Hz]: the
+    nearest whole number, at least one (a rate above the physics rate samples every step).
+
+    Raises:
+        InputError: a rate that is not a positive number of Hz.
+    """
+    if not (np.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+        raise InputError(f"sample rate must be a positive number of Hz, got {sample_rate_hz:g}")
+    return max(1, int(round(1.0 / (sample_rate_hz * dt))))
+
+
 def simulate_gait(gait: SidewindingGait, duration: float, *, params: ModelParameters | None = None,
                   settings: SimSettings | None = None, model: CobraModel | None = None,
                   simulator: Simulator | None = None, head_xy: tuple[float, float] = (0.0, 0.0), heading_rad: float = 0.0,
@@ -166,9 +179,14 @@ def simulate_gait(gait: SidewindingGait, duration: float, *, params: ModelParame
                   progress: Callable[[float], None] | None = None) -> Run:
     """Simulate the gait from the straight pose at rest; the run is sampled at ``sample_rate_hz``.
 
-    ``simulator`` (if given) replaces ``params``, ``settings`` and ``model``."""
+    ``simulator`` (if given) replaces ``params``, ``settings`` and ``model``; the samples are
+    every :func:`record_period` physics steps.
+
+    Raises:
+        InputError: a sample rate :func:`record_period` refuses.
+    """
     sim = simulator or Simulator(model or CobraModel.load(), params or ModelParameters.nominal(), settings)
-    every = max(1, int(round(1.0 / (sample_rate_hz * sim.settings.dt))))
+    every = record_period(sample_rate_hz, sim.settings.dt)
     state = sim.rest_state(gait.q_ref(0.0), head_xy=head_xy, heading_rad=heading_rad)
     traj = sim.rollout(state, gait.q_ref, duration, record_every=every, progress=progress)
     return trajectory_to_run(sim.model, traj, meta=_meta(sim.params, sim.settings, gait.to_json(),

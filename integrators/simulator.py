@@ -442,7 +442,13 @@ class Simulator:
 
         The root is placed at ``head_xy`` with yaw ``heading_rad`` (or orientation
         ``base_quat_wxyz``), then lifted or lowered so that the lowest contact point is at z = 0.
+
+        Raises:
+            InputError: a position or heading that is not finite.
         """
+        if not np.all(np.isfinite([head_xy[0], head_xy[1], heading_rad])):
+            raise InputError(f"rest_state: head_xy [m] and heading_rad must be finite, got {tuple(head_xy)} and "
+                             f"{heading_rad}")
         model = self.model
         if base_quat_wxyz is None:
             half = 0.5 * heading_rad
@@ -596,8 +602,11 @@ class Simulator:
             progress: called with the fraction done (0..1) about 100 times.
 
         Raises:
+            InputError: a duration that is not a number of seconds >= 0.
             SimulationDiverged: naming the time and the offending contact point or coordinate.
         """
+        if not (np.isfinite(duration) and duration >= 0):
+            raise InputError(f"rollout duration must be a number of seconds >= 0, got {duration}")
         s = self.settings
         sub = s.substeps
         n_steps = int(round(duration / s.dt))

@@ -101,3 +101,40 @@ def test_cobra_simulate_refuses_an_unstable_dt_before_running(tmp_path, capsys):
     err = capsys.readouterr().err
     assert code != 0 and "largest stable dt" in err and "--dt" in err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("option, message", [
+    (["--rate", "0"], "--rate: sample rate must be a positive number of Hz, got 0"),
+    (["--rate", "-5"], "--rate: sample rate must be a positive number of Hz, got -5"),
+    (["--rate", "nan"], "--rate: sample rate must be a positive number of Hz, got nan"),
+    (["--duration", "nan"], "--duration must be > 0 s, got nan"),
+    (["--heading", "nan"], "--heading must be a finite angle [deg], got nan"),
+])
+def test_cobra_simulate_refuses_a_rate_duration_or_heading_out_of_range(tmp_path, capsys, option, message):
+    """Before these checks a rate of 0 and a NaN duration ended in a traceback, a negative rate
+    wrote 1 kHz samples, and a NaN heading was reported as a divergence."""
+    out = tmp_path / "run.csv"
+    assert cobra_main(["simulate", "--out", str(out), "--duration", "0.1", *option]) == 2
+    assert message in capsys.readouterr().err and not out.exists()
+
+
+def test_cobra_simulate_says_when_the_rate_is_rounded_to_whole_steps(tmp_path, capsys):
+    out = tmp_path / "run.csv"
+    assert cobra_main(["simulate", "--out", str(out), "--duration", "0.3", "--rate", "300"]) == 0
+    printed = capsys.readouterr().out
+    assert "note: sampled at 333.3 Hz, one sample every 3 physics steps of 0.001 s (the nearest to --rate 300 Hz)" \
+        in printed
+    assert cobra_main(["simulate", "--out", str(tmp_path / "every.csv"), "--duration", "0.3", "--rate", "5000"]) == 0
+    assert "note: sampled at 1000 Hz, one sample every physics step of 0.001 s" in capsys.readouterr().out
+    assert cobra_main(["simulate", "--out", str(tmp_path / "exact.csv"), "--duration", "0.3", "--rate", "250"]) == 0
+    assert "note: sampled at" not in capsys.readouterr().out
+
+
+def test_a_rollout_refuses_a_duration_or_a_start_that_is_not_finite(cobra):
+    sim = Simulator(cobra, ModelParameters.nominal())
+    with pytest.raises(InputError, match="rollout duration must be a number of seconds >= 0, got nan"):
+        sim.rollout(sim.rest_state(), np.zeros((1, 11)), float("nan"))
+    with pytest.raises(InputError, match="rollout duration must be a number of seconds >= 0, got -1"):
+        sim.rollout(sim.rest_state(), np.zeros((1, 11)), -1.0)
+    with pytest.raises(InputError, match=r"rest_state: head_xy \[m\] and heading_rad must be finite"):
+        sim.rest_state(heading_rad=float("nan"))
