@@ -85,6 +85,10 @@ def _stop_on_sigterm(signum: int, frame: object) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Serve the emulated bus until Ctrl-C (or SIGTERM), ``--duration`` or an unplug fault."""
+    if args.duration is not None and not (math.isfinite(args.duration) and args.duration > 0):
+        raise InputError(f"--duration must be > 0 s of wall time, got {args.duration}")
+    if not args.report_every >= 0:
+        raise InputError(f"--report-every must be >= 0 s (0: never), got {args.report_every}")
     faults = [parse_fault(spec) for spec in args.fault]
     encoder = parse_encoder_offsets(args.encoder_offset_deg)
     config = load_bus_config(args.config) if args.config else None

@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import signal
 import subprocess
 import sys
@@ -13,6 +14,7 @@ from typing import Iterator
 import pytest
 
 from cobra_cli import cmd_compare, cmd_emulate, cmd_record
+from cobra_model.errors import InputError
 from cobra_model.run_files import read_run
 from hardware.config import EXAMPLE_CONFIG as EXAMPLE
 
@@ -135,6 +137,19 @@ def test_emulate_refuses_to_replace_a_file(tmp_path: Path) -> None:
     with pytest.raises(FileExistsError, match="not-a-link exists and is not a symlink; refusing to replace it"):
         args.func(args)
     assert target.read_text() == "keep"
+
+
+@pytest.mark.parametrize("option, message", [
+    (["--duration", "0"], "--duration must be > 0 s of wall time, got 0.0"),
+    (["--duration", "-1"], "--duration must be > 0 s of wall time, got -1.0"),
+    (["--report-every", "-5"], "--report-every must be >= 0 s (0: never), got -5.0"),
+])
+def test_emulate_refuses_a_duration_or_report_period_out_of_range(option: list[str], message: str) -> None:
+    """Before this check ``--duration 0`` served forever and a negative one stopped at once, both
+    without a word; it is checked before a pseudo-terminal is opened."""
+    args = parse(cmd_emulate, ["emulate", "--plant", "kinematic", *option])
+    with pytest.raises(InputError, match=re.escape(message)):
+        args.func(args)
 
 
 def test_record_stopped_by_sigterm_turns_torque_off_and_exits_143(tmp_path: Path, emulate) -> None:
