@@ -65,6 +65,8 @@ def diagnose_to(out: Path, runs: Sequence[str], *, holdout: Sequence[str] = (), 
             check_writable(out / name, force)
     if max_effects < 0:
         raise InputError(f"--max-effects must be >= 0, got {max_effects}")
+    if fit_runs < 0:
+        raise InputError(f"--fit-runs must be >= 0 (0: every training run), got {fit_runs}")
     train_paths, val_paths = expand(list(runs))
     val_paths += [Path(p) for p in holdout]
     if not train_paths or not val_paths:

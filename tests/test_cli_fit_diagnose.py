@@ -366,6 +366,18 @@ def test_fit_refuses_a_budget_iterations_or_workers_out_of_range(tmp_path, capsy
     assert message in capsys.readouterr().err and not out.exists()
 
 
+@pytest.mark.parametrize("option, message", [
+    (["--max-effects", "-1"], "--max-effects must be >= 0, got -1"),
+    (["--fit-runs", "-3"], "--fit-runs must be >= 0 (0: every training run), got -3"),
+])
+def test_diagnose_refuses_negative_counts(tmp_path, capsys, option, message):
+    """A negative ``--fit-runs`` used to fit on every run, as 0 asks, without a word."""
+    out = tmp_path / "never"
+    assert main(["diagnose", str(tmp_path / "run.csv"), "--holdout", str(tmp_path / "hold.csv"), *option,
+                 "--out", str(out)]) == 2
+    assert message in capsys.readouterr().err and not out.exists()
+
+
 def test_fit_ppo_refuses_residual_channel_weights(tmp_path, capsys):
     out = tmp_path / "never.json"
     assert main(["fit", str(tmp_path / "run.csv"), "--method", "ppo", "--channel-weights", "residual",
