@@ -113,6 +113,8 @@ class EmulatorStats:
         intact_sync_reads: sync reads every addressed servo answered intact, by start address.
         watchdog_stops_s: servo ID -> when its Bus Watchdog stopped it [s of emulated time after
             the first torque on, like fault times].
+        watchdog_heard_s: servo ID -> when it last heard the host before its watchdog stopped
+            it [same clock]: the silence the watchdog timed began there.
         torque_off_s: servo ID -> when its torque last went off (a write or its Shutdown) [same
             clock].
         closed: the pty is closed (stopped, unplugged or failed).
@@ -130,6 +132,7 @@ class EmulatorStats:
     corrupted: int = 0
     intact_sync_reads: dict[int, int] = field(default_factory=dict)
     watchdog_stops_s: dict[int, float] = field(default_factory=dict)
+    watchdog_heard_s: dict[int, float] = field(default_factory=dict)
     torque_off_s: dict[int, float] = field(default_factory=dict)
     closed: bool = False
     error: str | None = None
@@ -363,7 +366,8 @@ class BusEmulator:
                 self._stats, wall_time_s=wall, emulated_time_s=self._emulated_s,
                 real_time_factor=self._emulated_s / wall if wall > 0 else 1.0,
                 intact_sync_reads=dict(self._stats.intact_sync_reads),
-                watchdog_stops_s=dict(self._stats.watchdog_stops_s), torque_off_s=dict(self._stats.torque_off_s),
+                watchdog_stops_s=dict(self._stats.watchdog_stops_s),
+                watchdog_heard_s=dict(self._stats.watchdog_heard_s), torque_off_s=dict(self._stats.torque_off_s),
                 notes=[self._plant.note] if self._plant.note else [])
 
     def register(self, servo_id: int, fld: ct.Field) -> int:
@@ -441,6 +445,7 @@ class BusEmulator:
             if s.watchdog_due(self._emulated_s, time.perf_counter()):
                 s.stop_by_watchdog()
                 self._stats.watchdog_stops_s[s.joint.servo_id] = self._since_motion_s()
+                self._stats.watchdog_heard_s[s.joint.servo_id] = s.last_heard_s - (self._motion_start_s or 0.0)
         enabled = np.array([s.table.torque_enabled for s in self._servos])
         for s, on in zip(self._servos, enabled):
             self._profile_step(s, dt, on)
