@@ -445,7 +445,7 @@ class BusEmulator:
             if s.watchdog_due(self._emulated_s, time.perf_counter()):
                 s.stop_by_watchdog()
                 self._stats.watchdog_stops_s[s.joint.servo_id] = self._since_motion_s()
-                self._stats.watchdog_heard_s[s.joint.servo_id] = s.last_heard_s - (self._motion_start_s or 0.0)
+                self._stats.watchdog_heard_s[s.joint.servo_id] = self._since_motion_s(s.last_heard_s)
         enabled = np.array([s.table.torque_enabled for s in self._servos])
         for s, on in zip(self._servos, enabled):
             self._profile_step(s, dt, on)
@@ -529,9 +529,10 @@ class BusEmulator:
                     servo.table.set(ct.PRESENT_INPUT_VOLTAGE, round(10 * BROWNOUT_VOLTAGE_V))
                 self._set_hardware_error(servo, HARDWARE_FAULT_BITS[fault.kind])
 
-    def _since_motion_s(self) -> float:
-        """Emulated time since the first torque on [s] (the clock of faults and stats)."""
-        return self._emulated_s - (self._motion_start_s or 0.0)
+    def _since_motion_s(self, emulated_s: float | None = None) -> float:
+        """Emulated time ``emulated_s`` (default: now) since the first torque on [s] (the clock
+        of faults and stats)."""
+        return (self._emulated_s if emulated_s is None else emulated_s) - (self._motion_start_s or 0.0)
 
     def _set_hardware_error(self, s: _Servo, bit: HardwareError) -> None:
         """Raise a hardware error bit; torque goes off if Shutdown (63) has that bit."""
