@@ -26,7 +26,6 @@ metres.
 """
 from __future__ import annotations
 
-import csv
 import difflib
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -45,7 +44,7 @@ from cobra_model.run import (
     first_non_increasing,
     joint_columns,
 )
-from cobra_model.run_files import CsvTable, read_csv_table, read_run
+from cobra_model.run_files import CsvTable, read_csv_rows, read_csv_table, read_run
 
 #: Rotation from Motive's Y-up world to this project's Z-up world (+90 deg about x).
 Y_UP_TO_Z_UP = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
@@ -177,15 +176,14 @@ def read_motive_csv(path: str | Path) -> MotiveTake:
     by the same rotation (see the module docstring). Lost-tracking frames are NaN.
 
     Raises:
-        FileNotFoundError: if the file does not exist.
-        InputError: naming the file, column and/or row, for a file that is not a Motive export, a
+        FileNotFoundError: if the file does not exist (:func:`cobra_model.run_files.read_csv_rows`).
+        InputError: naming the file, column and/or row, for a directory, a file that is not a Motive export, a
             rotation type other than quaternions, a local coordinate space, an unknown length unit
             or up axis, no rigid bodies, non-numeric cells, non-increasing time or a non-unit
             quaternion.
     """
     path = Path(path)
-    with path.open(newline="", encoding="utf-8-sig") as fh:
-        rows = list(csv.reader(fh))
+    rows = read_csv_rows(path)
     if not rows:
         raise InputError(f"{path}: file is empty; expected an OptiTrack Motive CSV export")
     info = _info_row(path, rows[0])

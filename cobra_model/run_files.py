@@ -212,19 +212,36 @@ def joint_ranges(names: Sequence[str]) -> list[str]:
             for span in spans]
 
 
+def read_csv_rows(path: Path) -> list[list[str]]:
+    """Every row of a comma-separated file as cell strings (a UTF-8 byte-order mark accepted).
+
+    Raises:
+        FileNotFoundError: if the file does not exist (naming it, as
+            :meth:`cobra_model.parameters.ModelParameters.load` does).
+        InputError: for a directory.
+    """
+    try:
+        with path.open(newline="", encoding="utf-8-sig") as fh:
+            return list(csv.reader(fh))
+    except FileNotFoundError:
+        raise FileNotFoundError(f"CSV file {path} does not exist") from None
+    except IsADirectoryError:
+        raise InputError(f"{path}: is a directory; expected a CSV file") from None
+
+
 def read_csv_table(path: str | Path) -> CsvTable:
     """Read a comma-separated file with one header row into raw cell strings.
 
     Blank lines are skipped (row numbers still count them). A UTF-8 byte-order mark is accepted.
 
     Raises:
-        FileNotFoundError: if the file does not exist.
-        InputError: for an empty file, a header without data rows, an empty or duplicated column
-            name, or a row whose number of cells differs from the header's.
+        FileNotFoundError: if the file does not exist (naming it, as
+            :meth:`cobra_model.parameters.ModelParameters.load` does).
+        InputError: for a directory, an empty file, a header without data rows, an empty or
+            duplicated column name, or a row whose number of cells differs from the header's.
     """
     path = Path(path)
-    with path.open(newline="", encoding="utf-8-sig") as fh:
-        rows = list(csv.reader(fh))
+    rows = read_csv_rows(path)
     numbered = [(i + 1, row) for i, row in enumerate(rows) if row]
     if not numbered:
         raise InputError(f"{path}: file is empty; expected a header row and data rows")

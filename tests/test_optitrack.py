@@ -208,6 +208,13 @@ def _joint_log(path: Path, *, with_ref: bool, n: int = 11, dt: float = 0.05, hea
     return path
 
 
+def test_a_missing_take_or_joint_log_is_named(tmp_path: Path) -> None:
+    with pytest.raises(FileNotFoundError, match=r"^CSV file .*take\.csv does not exist$"):
+        read_motive_csv(tmp_path / "take.csv")
+    with pytest.raises(FileNotFoundError, match=r"^CSV file .*joints\.csv does not exist$"):
+        read_joint_log(tmp_path / "joints.csv")
+
+
 def test_read_plain_joint_log(tmp_path: Path) -> None:
     t, q, q_ref = read_joint_log(_joint_log(tmp_path / "j.csv", with_ref=False))
     assert t.shape == (11,) and q.shape == (11, NUM_JOINTS) and q_ref is None

@@ -356,8 +356,11 @@ def test_blank_lines_keep_file_row_numbers(tmp_path: Path) -> None:
 
 
 def test_missing_file_raises_file_not_found(tmp_path: Path) -> None:
-    with pytest.raises(FileNotFoundError):
+    with pytest.raises(FileNotFoundError, match=r"^CSV file .*nope\.csv does not exist$"):
         read_run(tmp_path / "nope.csv")
+    (tmp_path / "folder.csv").mkdir()
+    with pytest.raises(InputError, match=r"folder\.csv: is a directory; expected a CSV file"):
+        read_run(tmp_path / "folder.csv")
 
 
 # ---------------------------------------------------------------------------------------------
