@@ -21,8 +21,9 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/cobra demo --force  # refreshes its own plots in out/demo
 
-# Two pytest workers, each test file on one (its module fixtures are built once); a worker's
-# batched rollouts keep their two threads, so the threaded batch paths stay under test.
+# Two pytest workers, each test file on one (its module fixtures are built once); each worker's
+# batches run on one thread (COBRA_THREADS, tests/conftest.py), and the tests of the threaded
+# paths ask for two.
 TEST_WORKERS ?= 2
 test: $(STAMP)
 	$(PY) -m pytest -q -n $(TEST_WORKERS) --dist loadfile

@@ -12,6 +12,7 @@ workspace.
 """
 from __future__ import annotations
 
+import os
 from typing import Literal, Sequence, get_args
 
 import numba
@@ -27,6 +28,23 @@ from integrators.simulator import SimSettings, SimState, SimulationDiverged, Sim
 
 #: What a batch does when an environment diverges (:meth:`BatchSimulator.rollout`).
 Divergence = Literal["raise", "mask"]
+#: The environment variable that sets how many threads a batch runs on when not told
+#: (:func:`default_threads`): 1 when other processes share the cores, e.g. fits side by side.
+THREADS_ENV = "COBRA_THREADS"
+
+
+def default_threads() -> int:
+    """The threads a batch runs on when not told: ``$COBRA_THREADS``, else 2 (a 2-core machine's).
+
+    Raises:
+        InputError: the variable is set to anything but a whole number >= 1 (naming it).
+    """
+    raw = os.environ.get(THREADS_ENV, "").strip()
+    if not raw:
+        return 2
+    if not raw.isdigit() or int(raw) < 1:
+        raise InputError(f"{THREADS_ENV}={raw!r}: expected a whole number of threads >= 1")
+    return int(raw)
 
 
 class BatchSimulator:
@@ -39,11 +57,13 @@ class BatchSimulator:
             environment's soft contact needs (:func:`integrators.simulator.contact_resolved`;
             1 ms for the compliant ground), so that no environment steps coarser than it would
             alone.
-        threads: worker threads (environments run at the same time).
+        threads: worker threads (environments run at the same time; default
+            :func:`default_threads`). The results do not depend on it: each environment runs its
+            whole rollout on one thread.
     """
 
     def __init__(self, model: RobotModel, params: Sequence[ModelParameters], settings: SimSettings | None = None,
-                 threads: int = 2):
+                 threads: int | None = None):
         if not params:
             raise InputError("a batch needs at least one parameter set")
         if settings is not None and settings.scheme != "velocity":
@@ -67,7 +87,9 @@ class BatchSimulator:
         first = self.sims[0]
         self.settings = first.settings
         self.model = first.model
-        self.threads = threads
+        self.threads = default_threads() if threads is None else threads
+        if self.threads < 1:
+            raise InputError(f"a batch needs threads >= 1, got {self.threads}")
         self.act = np.ascontiguousarray(np.stack([s.act for s in self.sims]))
         self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
         self._soft = first.contact_law in K.SOFT_LAWS

@@ -3,6 +3,7 @@ and a disk that fills up under the run writer."""
 from __future__ import annotations
 
 import contextlib
+import os
 import sys
 from pathlib import Path
 from typing import Iterator
@@ -12,6 +13,14 @@ import pytest
 from cobra_model.model import CobraModel
 from hardware import faults
 from hardware.emulator import EmulatorProcess
+from integrators.batch import THREADS_ENV
+
+# Under pytest-xdist each worker has a core of its own: its batches run on one thread, so that two
+# workers' batches do not fight over the cores (the suite's wall time, docs/benchmarks.md). The
+# threaded paths stay under test where a test asks for threads (tests/test_batch.py,
+# tests/test_soft_contact.py); the results do not depend on the count.
+if int(os.environ.get("PYTEST_XDIST_WORKER_COUNT", "1")) > 1:
+    os.environ.setdefault(THREADS_ENV, "1")
 
 
 @pytest.fixture(scope="session")

@@ -57,6 +57,20 @@ def test_a_batch_needs_one_state_per_environment(cobra):
         batch.rollout([batch.sims[0].rest_state()], np.zeros((1, 2, 11)), 0.01)
 
 
+def test_a_batch_runs_on_the_threads_cobra_threads_gives_unless_told(cobra, monkeypatch):
+    nominal = [ModelParameters.nominal()]
+    monkeypatch.delenv("COBRA_THREADS", raising=False)
+    assert BatchSimulator(cobra, nominal).threads == 2
+    monkeypatch.setenv("COBRA_THREADS", "3")
+    assert BatchSimulator(cobra, nominal).threads == 3 and BatchSimulator(cobra, nominal, threads=1).threads == 1
+    for bad in ("0", "two", "-1", "1.5"):
+        monkeypatch.setenv("COBRA_THREADS", bad)
+        with pytest.raises(InputError, match=f"COBRA_THREADS='{bad}': expected a whole number of threads >= 1"):
+            BatchSimulator(cobra, nominal)
+    with pytest.raises(InputError, match="threads >= 1, got 0"):
+        BatchSimulator(cobra, nominal, threads=0)
+
+
 def test_a_masked_divergence_leaves_the_other_environments_bit_for_bit(cobra):
     # environment 1 starts far above the speed limit: it diverges at its first step
     params = [ModelParameters.nominal().with_values(mu_c=mu) for mu in (0.2, 0.3, 0.4)]

@@ -565,7 +565,7 @@ def test_batched_soft_rollouts_are_the_single_ones(cobra, law):
     nominal = twin_counterpart(ModelParameters.nominal()).with_contact_law(law)
     params = [nominal, nominal.with_values(mu_c=0.4, mu_s=0.4, contact_time_constant=0.005),
               nominal.with_values(armature=0.05, contact_time_constant=0.04)]
-    batch = BatchSimulator(cobra, params)
+    batch = BatchSimulator(cobra, params, threads=2)  # the threaded path, whatever $COBRA_THREADS says
     assert batch.settings == Simulator(cobra, params[1]).settings and batch.settings.dt == pytest.approx(0.0005)
     sims = [Simulator(cobra, p, batch.settings) for p in params]
     states = [sim.rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=0.3 * k) for k, sim in enumerate(sims)]

@@ -36,7 +36,7 @@ from cobra_model.resample import interpolate_rows
 from cobra_model.run import Run
 from cobra_model.servo import CURRENT_NOISE_A, PULSES_PER_REV
 from integrators import kernels as K
-from integrators.batch import BatchSimulator, Divergence
+from integrators.batch import BatchSimulator, Divergence, default_threads
 from integrators.simulate import InitialPose, StartObservation, command_ticks
 from integrators.simulator import SimSettings, SimState, contact_resolved, delay_commands, effect_value
 from sysid.identification.executor import Executor, LocalExecutor
@@ -425,9 +425,10 @@ class Objective:
             a :class:`~integrators.simulator.Simulator` of the same parameters takes: then
             ``auto_step`` is True and :meth:`with_params` follows the parameters' contact).
         executor: where parameter-vector chunks are evaluated (default: in-process).
-        threads: threads of one batched evaluation (default: 2 in-process, 1 per worker
-            process). Threads meet at a barrier every physics step, so use 1 when other
-            processes share the cores (e.g. several fits run side by side).
+        threads: threads of one batched evaluation (default: in-process
+            :func:`integrators.batch.default_threads`, 2 unless ``$COBRA_THREADS`` says otherwise;
+            1 per worker process). Use 1 when other processes share the cores (e.g. several fits
+            run side by side): more threads than free cores only fight over them.
         model: the robot (default: ``urdf/cobra.urdf``); worker processes load the same file.
     """
 
@@ -459,7 +460,7 @@ class Objective:
                                         for r in self.runs),
                                   self.params, self.weights, self.settings,
                                   None if self.model.urdf_path == DEFAULT_URDF.resolve() else self.model.urdf_path,
-                                  threads=self.threads or (2 if self.executor.workers == 1 else 1))
+                                  threads=self.threads or (default_threads() if self.executor.workers == 1 else 1))
 
     @property
     def _given_settings(self) -> SimSettings | None:
