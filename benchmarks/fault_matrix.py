@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import write_results  # noqa: E402
 from cobra_model.gait import SidewindingGait  # noqa: E402
-from cobra_model.run import read_run  # noqa: E402
+from cobra_model.run_files import read_run  # noqa: E402
 from hardware import control_table as ct  # noqa: E402
 from hardware.config import BusConfig  # noqa: E402
 from hardware.emulator import EmulatorProcess  # noqa: E402
