@@ -42,7 +42,7 @@ def default_threads() -> int:
     raw = os.environ.get(THREADS_ENV, "").strip()
     if not raw:
         return 2
-    if not raw.isdigit() or int(raw) < 1:
+    if not raw.isdecimal() or int(raw) < 1:
         raise InputError(f"{THREADS_ENV}={raw!r}: expected a whole number of threads >= 1")
     return int(raw)
 
@@ -66,6 +66,8 @@ class BatchSimulator:
                  threads: int | None = None):
         if not params:
             raise InputError("a batch needs at least one parameter set")
+        if threads is not None and threads < 1:
+            raise InputError(f"a batch needs threads >= 1, got {threads}")
         if settings is not None and settings.scheme != "velocity":
             raise InputError(f"batched rollouts use the velocity-form step; scheme {settings.scheme!r} is for "
                              f"single rollouts (Simulator.rollout)")
@@ -88,8 +90,6 @@ class BatchSimulator:
         self.settings = first.settings
         self.model = first.model
         self.threads = default_threads() if threads is None else threads
-        if self.threads < 1:
-            raise InputError(f"a batch needs threads >= 1, got {self.threads}")
         self.act = np.ascontiguousarray(np.stack([s.act for s in self.sims]))
         self.ground = np.ascontiguousarray(np.stack([s.ground for s in self.sims]))
         self._soft = first.contact_law in K.SOFT_LAWS

@@ -63,7 +63,7 @@ def test_a_batch_runs_on_the_threads_cobra_threads_gives_unless_told(cobra, monk
     assert BatchSimulator(cobra, nominal).threads == 2
     monkeypatch.setenv("COBRA_THREADS", "3")
     assert BatchSimulator(cobra, nominal).threads == 3 and BatchSimulator(cobra, nominal, threads=1).threads == 1
-    for bad in ("0", "two", "-1", "1.5"):
+    for bad in ("0", "two", "-1", "1.5", "²"):  # "²" is a digit to str.isdigit, not to int()
         monkeypatch.setenv("COBRA_THREADS", bad)
         with pytest.raises(InputError, match=f"COBRA_THREADS='{bad}': expected a whole number of threads >= 1"):
             BatchSimulator(cobra, nominal)
