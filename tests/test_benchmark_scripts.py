@@ -11,14 +11,15 @@ import pytest
 
 ROOT = Path(__file__).resolve().parent.parent
 SCRIPTS = sorted(p.stem for p in (ROOT / "benchmarks").glob("*.py"))
+#: The scripts run from the command line: not the shared helpers (a leading "_", and held_out.py).
+RUNNABLE = {n for n in SCRIPTS if not n.startswith("_") and n != "held_out"}
 
 
 @pytest.mark.parametrize("name", SCRIPTS)
 def test_the_script_imports(name, monkeypatch):
     monkeypatch.syspath_prepend(str(ROOT / "benchmarks"))  # as `python benchmarks/NAME.py` has it
     module = runpy.run_path(str(ROOT / "benchmarks" / f"{name}.py"), run_name=f"benchmark_{name}")
-    # a script (not a shared helper, whose name starts with "_", or held_out.py) runs from its command line
-    if not name.startswith("_") and name != "held_out":
+    if name in RUNNABLE:
         assert callable(module.get("main")), f"benchmarks/{name}.py has no main()"
 
 
@@ -27,6 +28,5 @@ def test_make_bench_runs_every_script():
     recipe = re.search(r"^bench:.*\n((?:\t.*\n)+)", makefile, re.MULTILINE)
     assert recipe, "the Makefile has no bench target"
     ran = set(re.findall(r"benchmarks/(\w+)\.py", recipe[1]))
-    scripts = {n for n in SCRIPTS if not n.startswith("_") and n != "held_out"}
     assert ran <= set(SCRIPTS), f"make bench runs scripts that do not exist: {sorted(ran - set(SCRIPTS))}"
-    assert scripts <= ran, f"make bench leaves out: {sorted(scripts - ran)}"
+    assert RUNNABLE <= ran, f"make bench leaves out: {sorted(RUNNABLE - ran)}"
