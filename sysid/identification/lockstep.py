@@ -10,7 +10,8 @@ requests of every computation that can share a batched rollout
 Why: a least-squares trial step or a held-out cost is one environment per run, a batch of a
 few environments, which leaves a thread idle once its share is done and pays each call's
 overhead for little physics. Independent fits that take their steps together (the discrepancy
-workflow's candidate effects, each refitted from its own start) fill one batch instead. Every environment steps exactly as it would alone
+workflow's candidate effects, each refitted from its own start) fill one batch instead. Every
+environment steps exactly as it would alone
 (:func:`~sysid.identification.objective.simulate_together`), so results are bit-for-bit those of
 running the computations one after the other.
 """
