@@ -91,6 +91,15 @@ def test_objective_is_the_same_in_process_and_in_local_processes(noisy_runs):
     assert np.sum(inline[0] ** 2) < np.sum(inline[1] ** 2)     # truth fits better than a wrong guess
 
 
+def test_an_objective_runs_on_the_threads_it_is_given_or_the_default(noisy_runs, monkeypatch):
+    p = TRUTH.with_frozen(free=["mu_c"])
+    monkeypatch.setenv("COBRA_THREADS", "3")
+    assert Objective(noisy_runs[:1], p).spec.threads == 3
+    assert Objective(noisy_runs[:1], p, threads=1).spec.threads == 1
+    with pytest.raises(InputError, match="an objective needs threads >= 1 .*got 0"):
+        Objective(noisy_runs[:1], p, threads=0)
+
+
 @pytest.mark.slow
 def test_objective_on_ray_matches_local(noisy_runs):
     ray = pytest.importorskip("ray")

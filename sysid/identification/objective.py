@@ -453,6 +453,8 @@ class Objective:
                                  f"none in {', '.join(missing)}")
         if self.model.urdf_path is None:
             raise InputError("the objective's model must come from a URDF file (worker processes load it)")
+        if self.threads is not None and self.threads < 1:
+            raise InputError(f"an objective needs threads >= 1 (or None: the default), got {self.threads}")
         self.auto_step = self.settings is None
         if self.auto_step:
             self.settings = contact_resolved(SimSettings(), self.params)
@@ -460,7 +462,8 @@ class Objective:
                                         for r in self.runs),
                                   self.params, self.weights, self.settings,
                                   None if self.model.urdf_path == DEFAULT_URDF.resolve() else self.model.urdf_path,
-                                  threads=self.threads or (default_threads() if self.executor.workers == 1 else 1))
+                                  threads=(self.threads if self.threads is not None
+                                           else default_threads() if self.executor.workers == 1 else 1))
 
     @property
     def _given_settings(self) -> SimSettings | None:
