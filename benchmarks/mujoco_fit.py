@@ -49,7 +49,8 @@ table gives the held-out figures before that refit ("fixed weights") and after i
 
 Seeds 7 and 5 (heading 0.3 rad; twin and stiff, and elliptic_soft for the residual weights)
 were used while developing; the table reports seeds 101-103.
-Progress goes to stderr; results to ``benchmarks/results/mujoco_fit.{json,md}``.
+Progress goes to stderr; results to ``benchmarks/results/STEM.{json,md}`` (``--name``, default
+``mujoco_fit``).
 
 Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--seeds 101,102,103]
 [--headings 0.3,2.0] [--iterations 8] [--laws compliant,soft_constraint,soft_elliptic]
@@ -57,9 +58,8 @@ Run: ``.venv/bin/python benchmarks/mujoco_fit.py [--configs twin,cylinder] [--se
 ``results/mujoco_fit_residual.md`` (``make bench``: twin and elliptic_soft, the two soft laws,
 residual weights) and ``results/mujoco_fit_residual_stiff.md`` (the stiff configuration, the same
 method; two make lines, so that each half can be rerun in an hour or two).
-``results/mujoco_fit.md`` (all five configurations, compliant and pyramid laws) and
-``results/mujoco_fit_elliptic.md`` (the elliptic configurations, three laws) were measured with
-earlier soft laws and are kept as history.
+The earlier runs with the compliant law among the candidates (all five configurations, and the
+elliptic configurations with three laws, 2026-11-25) are in ``CHANGELOG.md``.
 """
 from __future__ import annotations
 
