@@ -3,7 +3,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test install clean-venv bench
+.PHONY: demo test install clean-venv bench aba-codegen
 
 $(PY):
 	python3 -m venv $(VENV)
@@ -11,7 +11,7 @@ $(PY):
 
 # torch first, pinned: a CPU build of 2.13.0 is served locally; any other spec pulls CUDA wheels.
 # The C++ extension's source and build script too: an edited _aba.cpp is rebuilt, not left stale.
-$(STAMP): $(PY) pyproject.toml setup.py integrators/_aba.cpp
+$(STAMP): $(PY) pyproject.toml setup.py integrators/_aba.cpp integrators/_aba_model.hpp integrators/_aba_cobra.c
 	$(PY) -m pip install --quiet torch==2.13.0
 	$(PY) -m pip install --quiet -e '.[all]'
 	touch $(STAMP)
@@ -62,6 +62,11 @@ bench: $(STAMP)
 	$(PY) benchmarks/mujoco_fit.py --configs twin,elliptic_soft --laws soft_constraint,soft_elliptic --channel-weights residual --name mujoco_fit_residual
 	$(PY) benchmarks/mujoco_fit.py --configs stiff --laws soft_constraint,soft_elliptic --channel-weights residual --name mujoco_fit_residual_stiff
 	$(PY) benchmarks/headline.py  # the README's headline table from benchmarks/results/
+
+# COBRA's ABA as generated C (integrators/_aba_cobra.c, committed), after a change to the URDF's
+# joints or link frames: minutes of g++; the next `make install` rebuilds the extension with it.
+aba-codegen: $(STAMP)
+	$(PY) tools/generate_aba.py
 
 clean-venv:
 	rm -rf $(VENV)

@@ -1,4 +1,6 @@
-"""Builds ``integrators._aba``: Pinocchio's ABA behind a C interface (``integrators/_aba.cpp``).
+"""Builds ``integrators._aba``: the articulated-body algorithm behind a C interface
+(``integrators/_aba.cpp``, which includes ``_aba_model.hpp`` and the generated ABA of COBRA's
+structure, ``_aba_cobra.c``: ``tools/generate_aba.py`` writes it; a build needs no CasADi).
 
 Everything else is in ``pyproject.toml``. The extension compiles against the headers of the
 ``libpinocchio`` and ``cmeel-eigen`` packages (the build requirements) and links against
@@ -16,6 +18,7 @@ eigen = distribution("cmeel-eigen").locate_file("cmeel.prefix")
 aba = Extension(
     "integrators._aba",
     sources=["integrators/_aba.cpp"],
+    depends=["integrators/_aba_model.hpp", "integrators/_aba_cobra.c"],
     include_dirs=[str(prefix / "include"), str(eigen / "include" / "eigen3")],
     library_dirs=[str(prefix / "lib")],
     libraries=["pinocchio_default"],

@@ -28,11 +28,7 @@ import pinocchio  # noqa: F401  (loads libpinocchio_default, which the library l
 from numba import types
 
 from cobra_model.model import RobotModel
-
-#: Joint type codes of ``_aba.cpp`` by Pinocchio's joint model name.
-JOINT_CODES = {"JointModelFreeFlyer": 0, "JointModelRX": 1, "JointModelRY": 2, "JointModelRZ": 3,
-               "JointModelRevoluteUnaligned": 4}
-
+from cobra_model.pinocchio_fields import model_fields
 
 def _library_path() -> Path:
     """The built ``integrators._aba`` extension (built by ``pip install``; see ``setup.py``)."""
@@ -51,6 +47,8 @@ _F64P = ctypes.POINTER(ctypes.c_double)
 _lib.cobra_model_new.restype = ctypes.c_ssize_t
 _lib.cobra_model_new.argtypes = [ctypes.c_int32, _I32P, _I32P, _F64P, _F64P, _F64P, _F64P, _F64P]
 _lib.cobra_model_free.argtypes = [ctypes.c_ssize_t]
+_lib.cobra_model_generated.restype = ctypes.c_int32
+_lib.cobra_model_generated.argtypes = [ctypes.c_ssize_t]
 _lib.cobra_data_new.restype = ctypes.c_ssize_t
 _lib.cobra_data_new.argtypes = [ctypes.c_ssize_t]
 _lib.cobra_data_free.argtypes = [ctypes.c_ssize_t]
@@ -84,34 +82,25 @@ class NativeModel:
         model: the robot; its joints must be a free-flyer root and revolute joints (as
             :class:`RobotModel` already requires).
 
+    Attributes:
+        generated: whether its ABA is the generated one (``integrators/_aba_cobra.c``: the model
+            has the kinematic structure it was generated for, COBRA's), or else Pinocchio's.
+
     Raises:
         ValueError: a joint type ``_aba.cpp`` does not build.
     """
 
     def __init__(self, model: RobotModel):
-        pm = model.pin_model
-        joints = range(1, pm.njoints)
-        names = [pm.joints[i].shortname() for i in joints]
-        unknown = sorted(set(names) - set(JOINT_CODES))
-        if unknown:
-            raise ValueError(f"the native ABA builds {', '.join(JOINT_CODES)} joints, not {', '.join(unknown)}")
-        code = np.array([JOINT_CODES[n] for n in names], dtype=np.int32)
-        parent = np.array([pm.parents[i] for i in joints], dtype=np.int32)
-        placement = _f64([np.r_[pm.jointPlacements[i].rotation.ravel(), pm.jointPlacements[i].translation]
-                          for i in joints])
-        inertia = _f64([np.r_[pm.inertias[i].mass, pm.inertias[i].lever, _symmetric3(pm.inertias[i].inertia)]
-                        for i in joints])
-        axis = _f64([pm.joints[i].extract().axis if n == "JointModelRevoluteUnaligned" else np.zeros(3)
-                     for i, n in zip(joints, names)])
-        armature, gravity = _f64(pm.armature), _f64(pm.gravity.linear)
-        self.nq, self.nv = pm.nq, pm.nv
+        f = model_fields(model)
+        self.nq, self.nv = model.pin_model.nq, model.pin_model.nv
         self.handle = int(_lib.cobra_model_new(
-            len(code), code.ctypes.data_as(_I32P), parent.ctypes.data_as(_I32P), placement.ctypes.data_as(_F64P),
-            inertia.ctypes.data_as(_F64P), axis.ctypes.data_as(_F64P), armature.ctypes.data_as(_F64P),
-            gravity.ctypes.data_as(_F64P)))
+            len(f.code), f.code.ctypes.data_as(_I32P), f.parent.ctypes.data_as(_I32P),
+            f.placement.ctypes.data_as(_F64P), f.inertia.ctypes.data_as(_F64P), f.axis.ctypes.data_as(_F64P),
+            f.armature.ctypes.data_as(_F64P), f.gravity.ctypes.data_as(_F64P)))
         if not self.handle:
-            raise ValueError(f"_aba.cpp did not build the model (joint codes {code.tolist()})")
+            raise ValueError(f"_aba.cpp did not build the model (joint codes {f.code.tolist()})")
         weakref.finalize(self, _lib.cobra_model_free, self.handle)
+        self.generated = bool(_lib.cobra_model_generated(self.handle))
 
     def __reduce__(self):
         raise TypeError("a NativeModel points into this process's memory and does not pickle; "
@@ -130,11 +119,6 @@ class NativeData:
     def __reduce__(self):
         raise TypeError("a NativeData points into this process's memory and does not pickle; make a new one "
                         "where it is used")
-
-
-def _symmetric3(inertia: np.ndarray) -> np.ndarray:
-    """A symmetric 3x3 inertia in Pinocchio's ``Symmetric3`` order (xx, xy, yy, xz, yz, zz)."""
-    return inertia[[0, 1, 1, 2, 2, 2], [0, 0, 1, 0, 1, 2]]
 
 
 _MODELS: "weakref.WeakKeyDictionary[RobotModel, NativeModel]" = weakref.WeakKeyDictionary()

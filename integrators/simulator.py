@@ -527,17 +527,23 @@ class Simulator:
             self._raise(status, state.t, state.q, v)
         return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1)
 
+    def _native_data(self) -> native.NativeData:
+        """The compiled loop's ABA workspace (:mod:`integrators.native`), made at its first use."""
+        if self._native is None:
+            self._native = native.NativeData(native.native_model(self.model))
+        return self._native
+
     def _acceleration(self, model: pin.Model, data: pin.Data, q: np.ndarray, v: np.ndarray,
                       tau: np.ndarray) -> np.ndarray:
-        """The acceleration (nv,) under generalized force ``tau`` by the contact law: Pinocchio's
-        ABA for the compliant ground, with the soft-constraint contact forces for that law
-        (``model``, ``data``: this simulator's Pinocchio model and data, as :func:`pin.aba` takes
-        them). ABA runs in the WORLD convention, as the compiled loops run it
-        (``integrators.native``)."""
-        a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD)
+        """The acceleration (nv,) under generalized force ``tau`` by the contact law, as the
+        compiled loops compute it: for the compliant ground the native ABA
+        (:func:`integrators.native.aba`: the generated one on COBRA's structure), for the other
+        laws Pinocchio's ABA with the contact forces (``model``, ``data``: this simulator's
+        Pinocchio model and data, as :func:`pin.aba` takes them). ABA runs in the WORLD
+        convention."""
         if self.loop_law == K.LAW_COMPLIANT:
-            return a  # Pinocchio's data.ddq, read at once by the step
-        a = a.copy()  # the contact laws below add to it
+            return native.aba(self._native_data(), q, v, tau)
+        a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD).copy()  # the contact laws below add to it
         if self.loop_law == K.LAW_COMPLIANT_IMPLICIT:
             K.implicit_friction_acceleration(v, pin.computeMinverse(model, data).copy(), self.model.chain.floating,
                                              self._chain_i[:, 0], self._chain_i[:, 2], self._feat_i[:, 0], self._X,
@@ -630,9 +636,8 @@ class Simulator:
         if momentum is None:
             # the whole loop compiled, Pinocchio's dynamics included (integrators.native); chunks
             # only to report progress
-            if self._native is None:
-                self._native = native.NativeData(native.native_model(self.model))
-            handles = self._native.model.handle, self._native.handle, self.loop_law
+            nd = self._native_data()
+            handles = nd.model.handle, nd.handle, self.loop_law
             # the soft-constraint laws' workspace: D^-1, the bodies' weights, warm start
             weights = self.model.reference_weights if self.contact_law in K.SOFT_LAWS else np.zeros(0)
             soft = (np.zeros((nv, nv)), weights, self._soft_warm)
