@@ -1,19 +1,27 @@
-"""Pinocchio's ABA (and, for the soft-constraint contact, the inverse mass matrix from the same
-pass) for the compiled loops: the C interface of ``integrators/_aba.cpp``.
+"""The articulated-body algorithm (and, for the soft-constraint contact, the inverse mass matrix
+from Pinocchio's pass) for the compiled loops: the C interface of ``integrators/_aba.cpp``.
 
 The simulator's kernels are numba code; a rollout that called ``pin.aba`` from Python between
 two kernel calls paid a trip through the interpreter twice per physics step, several times
 what the kernels cost. ``_aba.cpp`` (built with the package against the same
-``libpinocchio_default`` that ``pin`` uses) exposes Pinocchio's own ABA as C functions; numba
-calls :data:`ABA` like any C function, so a whole rollout runs in one compiled loop
-(``integrators.kernels.rollout_loop``) and ABA is still Pinocchio's: the same explicit
-instantiation as ``pin.aba``, whose accelerations in the WORLD convention (the faster pass; the
-same joint accelerations as the LOCAL one to roundoff) it reproduces bit for bit (and so for
-``pin.computeMinverse``, the soft-constraint law's inverse mass matrix).
+``libpinocchio_default`` that ``pin`` uses) exposes ABA as C functions; numba calls :data:`ABA`
+like any C function, so a whole rollout runs in one compiled loop
+(``integrators.kernels.rollout_loop``). Which ABA (:attr:`NativeModel.generated`):
+
+- on COBRA's kinematic structure, ``integrators/_aba_cobra.c``: straight-line C that CasADi
+  generated from Pinocchio's ABA run on its symbolic scalar (``tools/generate_aba.py``), the
+  bodies' inertias, the armature and the gravity its inputs. About half the cost of Pinocchio's
+  generic pass; the same accelerations as ``pin.aba`` in the WORLD convention to roundoff;
+- on any other structure, Pinocchio's own ABA: the same explicit instantiation as ``pin.aba``,
+  whose accelerations in the WORLD convention (the faster pass; the same joint accelerations as
+  the LOCAL one to roundoff) it reproduces bit for bit.
+
+:data:`ABA_MINVERSE` is always Pinocchio's pass, then ``pin.computeMinverse`` (the soft-constraint
+law's inverse mass matrix), bit for bit.
 
 :class:`NativeModel` rebuilds a :class:`~cobra_model.model.RobotModel`'s Pinocchio model on the
-C++ side from its fields (joint types, parents, placements, inertias, armature, gravity);
-:class:`NativeData` is one workspace. Both free their C++ object when collected.
+C++ side from its fields (:mod:`cobra_model.pinocchio_fields`); :class:`NativeData` is one
+workspace. Both free their C++ object when collected.
 """
 from __future__ import annotations
 
@@ -29,6 +37,7 @@ from numba import types
 
 from cobra_model.model import RobotModel
 from cobra_model.pinocchio_fields import model_fields
+
 
 def _library_path() -> Path:
     """The built ``integrators._aba`` extension (built by ``pip install``; see ``setup.py``)."""
@@ -60,8 +69,9 @@ _F64 = types.CPointer(types.float64)
 
 #: ``cobra_aba(model, data, q, v, tau, a)`` for numba code: the acceleration (nv,) into ``a``
 #: from ``q`` (nq,), ``v`` (nv,), ``tau`` (nv,) (pass ``array.ctypes``), as ``pin.aba`` in the
-#: WORLD convention; ``model`` and ``data`` are :attr:`NativeModel.handle` and
-#: :attr:`NativeData.handle`. Returns 0.
+#: WORLD convention (the generated ABA on COBRA's structure, to roundoff); ``model`` and
+#: ``data`` are :attr:`NativeModel.handle` and :attr:`NativeData.handle`. Returns 0. Stateless
+#: for the generated ABA, ``data`` Pinocchio's workspace otherwise: one per thread.
 ABA = types.ExternalFunction("cobra_aba", types.int32(types.intp, types.intp, _F64, _F64, _F64, _F64))
 #: ``cobra_aba_minverse(model, data, q, v, tau, a, minv)``: the acceleration without contact (nv,)
 #: into ``a`` and ``D(q)^-1`` into ``minv`` (nv, nv) C-ordered, its upper triangle, from one
