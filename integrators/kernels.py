@@ -7,8 +7,9 @@ evaluating the compliant ground and the actuator, and mapping the contact forces
 forces ``J^T F``. To do so in one compiled call per step they walk the kinematic tree with the
 joint placements and axes read from the Pinocchio model; ``tests/test_kernels.py`` checks
 positions, velocities and ``J^T F`` against Pinocchio's own frame Jacobians to 1e-12. A single
-rollout's loop (:func:`rollout_loop`) calls Pinocchio's ABA (for the soft-constraint laws with
-the inverse mass matrix from the same pass) through :mod:`integrators.native`, so that the
+rollout's loop (:func:`rollout_loop`) calls ABA (COBRA's generated from Pinocchio's; for the
+soft-constraint laws Pinocchio's, with the inverse mass matrix from the same pass) through
+:mod:`integrators.native`, so that the
 whole loop is compiled; a batch (:func:`batch_rollout_loop`) runs that loop for each of its
 environments on the worker threads. Each contact law has a loop and a batch of its own
 (:data:`LAW_LOOPS`, :data:`LAW_BATCHES`), so that numba compiles, on first use, only the laws
@@ -643,8 +644,8 @@ def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, ac
 def _rollout_loop(law, args):
     """Steps ``start`` to ``stop - 1`` of a rollout in one compiled loop: :func:`rollout_step`,
     then the acceleration ``a`` (nv,) that the next step integrates, by the contact law ``law``
-    (:data:`LOOP_LAWS`): Pinocchio's ABA (:data:`integrators.native.ABA`) for the compliant
-    ground; for a soft-constraint law the same pass's acceleration without contact and ``D^-1``
+    (:data:`LOOP_LAWS`): ABA (:data:`integrators.native.ABA`, generated from Pinocchio's on
+    COBRA's structure) for the compliant ground; for a soft-constraint law the same pass's acceleration without contact and ``D^-1``
     into ``minv`` (nv, nv) (:data:`integrators.native.ABA_MINVERSE`), then
     :func:`soft_contact_acceleration` with the bodies' weights ``body_weight`` and the
     solver's warm start ``warm``; for ``LAW_COMPLIANT_IMPLICIT`` that pass under the compliant
