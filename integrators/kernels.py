@@ -9,9 +9,8 @@ joint placements and axes read from the Pinocchio model; ``tests/test_kernels.py
 positions, velocities and ``J^T F`` against Pinocchio's own frame Jacobians to 1e-12. A single
 rollout's loop (:func:`rollout_loop`) calls ABA (COBRA's generated from Pinocchio's; for the
 soft-constraint laws Pinocchio's, with the inverse mass matrix from the same pass) through
-:mod:`integrators.native`, so that the
-whole loop is compiled; a batch (:func:`batch_rollout_loop`) runs that loop for each of its
-environments on the worker threads. Each contact law has a loop and a batch of its own
+:mod:`integrators.native`, so that the whole loop is compiled; a batch
+(:func:`batch_rollout_loop`) runs that loop for each of its environments on the worker threads. Each contact law has a loop and a batch of its own
 (:data:`LAW_LOOPS`, :data:`LAW_BATCHES`), so that numba compiles, on first use, only the laws
 a user runs: one loop with every law's solver took 70 s to compile on a 2-core Xeon, the
 compliant ground's takes 17 s and its batch 15 s more (``benchmarks/results/first_run.md``).
