@@ -71,7 +71,8 @@ def test_native_dynamics_are_pinocchios(cobra, erd_dir, tmp_path):
     for name, model in _robots(cobra, erd_dir, tmp_path).items():
         pm = model.pin_model
         nm = native.native_model(model)
-        assert nm.generated == name.startswith("cobra"), name  # COBRA's structure, whatever its parameters
+        # COBRA's structure, whatever its parameters (if not: was the URDF changed without `make aba-codegen`?)
+        assert nm.generated == name.startswith("cobra"), name
         data = native.NativeData(nm)
         reference = pm.createData()
         for _ in range(20):
