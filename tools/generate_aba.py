@@ -51,7 +51,10 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--urdf", type=Path, default=None, help="robot file (default: urdf/cobra.urdf)")
     args = parser.parse_args(argv)
-    f = model_fields(CobraModel.load(args.urdf) if args.urdf is not None else CobraModel.load())
+    try:
+        f = model_fields(CobraModel.load(args.urdf) if args.urdf is not None else CobraModel.load())
+    except (OSError, ValueError) as exc:  # a missing or unreadable file, a joint type _aba.cpp does not build
+        parser.error(f"--urdf {args.urdf}: {exc}")
     rows = np.hstack([f.code[:, None], f.parent[:, None], f.placement, f.inertia, f.axis])
     with tempfile.TemporaryDirectory() as tmp:
         fields = Path(tmp) / "model.txt"
