@@ -400,6 +400,11 @@ DIAGNOSIS_FILES = MATRIX_FILES + ("diagnose_accuracy", "mujoco_robustness", "muj
 SOFT_LAW_FILES = ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "diagnose_matrix_soft_constraint_stiff",
                   "mujoco_robustness_soft_constraint", "mujoco_fit_residual", "mujoco_fit_residual_stiff",
                   "contact_law", "contact_step", "channel_weighting", "sim_speed")
+#: Every results file measured on compliant-law rollouts (their speed, or fits and diagnoses, which a
+#: change to that step's last bits may move where the cost is rough).
+COMPLIANT_LAW_FILES = ("sim_speed", "fit_speed", "coverage", "channel_weighting", "diagnose_matrix",
+                       "diagnose_matrix_current", "diagnose_matrix_choose", "diagnose_accuracy", "mujoco_robustness",
+                       "mujoco_robustness_current", "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")
 CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     ("2026-11-25T18:00", "5feff3c", "soft laws",
      ("diagnose_matrix_soft_constraint", "diagnose_matrix_choose", "mujoco_fit_residual", "contact_law")),
@@ -477,9 +482,7 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # 1e-14 m over 20 s), so a fit's or a diagnosis's result may move where its cost is rough;
     # rollouts without a fit (contact_law, contact_time_constant, effect_signal) agree to their digits
     ("2026-12-04T23:06", "883ca4c", "ABA in the WORLD convention (compliant law's last bits)",
-     ("sim_speed", "fit_speed", "coverage", "channel_weighting", "diagnose_matrix", "diagnose_matrix_current",
-      "diagnose_matrix_choose", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+     COMPLIANT_LAW_FILES),
     ("2026-12-05T02:49", "c4df0f7", "the second look when no screened candidate passes", DIAGNOSIS_FILES),
     ("2026-12-05T05:20", "1fc59a4", "figures from seeds 31-33, which mechanisms were found on", MATRIX_FILES),
     ("2026-12-05T07:10", "dbe43b4", "the pyramid's solve through the velocities on many rows (soft law's last bits)",
@@ -502,9 +505,7 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # (within 1.1e-14 m over 20 s), so a fit's or a diagnosis's result may move where its cost is
     # rough; the soft laws keep Pinocchio's pass (their inverse mass matrix comes from it)
     ("2026-12-07T09:16", "5a8059d", "COBRA's generated ABA (compliant law's last bits)",
-     ("sim_speed", "fit_speed", "coverage", "channel_weighting", "diagnose_matrix", "diagnose_matrix_current",
-      "diagnose_matrix_choose", "diagnose_accuracy", "mujoco_robustness", "mujoco_robustness_current",
-      "mujoco_robustness_stiff", "mujoco_robustness_stiff_current")),
+     COMPLIANT_LAW_FILES),
 )
 
 
