@@ -39,6 +39,7 @@ inline bool build_model(int32_t n, const int32_t* code, const int32_t* parent, c
       default: return false;
     }
     const double* I = inertia + 10 * k;
+    // assigned, not appended: appending sums inertias and would round differently
     model.inertias[j] = pinocchio::Inertia(I[0], Eigen::Vector3d(I[1], I[2], I[3]),
                                            pinocchio::Symmetric3(I[4], I[5], I[6], I[7], I[8], I[9]));
   }
