@@ -10,9 +10,9 @@ or none (a null). Two engines make the data:
 - ``mujoco``: the MuJoCo twin (``sysid.generators.mujoco_recording``) with the effect expressed on MuJoCo's
   side (``sysid.generators.mujoco_recording.EFFECT_OPTIONS``: joint ``frictionloss``, actuator
   ``forcerange``, commands delayed in a buffer, encoders offset, body-aligned anisotropic contact
-  friction, a payload on the head body; the ground's parameters are then free too). Backlash is
-  not expressed in the twin (MuJoCo has no joint play short of a second joint per module) and is
-  left out of MuJoCo's matrix.
+  friction, a payload on the head body, and since 2026-12-07 gear play: a second hinge per joint
+  between the motor and the encoder's output, ``integrators.mujoco_twin.TwinOptions.backlash``;
+  the ground's parameters are then free too).
 
 Magnitudes: each effect's realistic one (``Effect.realistic``) and one near its detection limit
 (:func:`near_limit`): a quarter of the way from where the effect starts to act to its realistic
@@ -35,7 +35,7 @@ the one our model at the truth leaves on the same held-out run, :func:`gap_at_tr
 share closed), and the wall time per diagnosis. ``--summary-only`` recomputes these from the
 rows of an earlier run's file.
 
-Pairs: every two effects an engine expresses, hidden together at their realistic magnitudes (one
+Pairs: every two effects, hidden together at their realistic magnitudes (one
 dataset each, seeds cycled), are diagnosed for two effects; a pair counts when both are named,
 in either order (``--no-pairs`` leaves them out). They are counted apart from the confusion matrix.
 
@@ -101,7 +101,7 @@ from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.identification.contact_choice import nominal_start  # noqa: E402
 from sysid.identification.executor import make_executor  # noqa: E402
 from sysid.gap.metrics import compare_runs  # noqa: E402
-from sysid.generators.mujoco_recording import (EFFECT_OPTIONS, contact_configurations,  # noqa: E402
+from sysid.generators.mujoco_recording import (contact_configurations,  # noqa: E402
                                                counterpart_under, describe, record_mujoco, twin_options,
                                                with_effects)
 
@@ -364,7 +364,7 @@ def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: l
              duration_s: float, pairs: bool = False, mujoco_law: str = "compliant",
              mujoco_contact: str = "twin", current: bool = False, laws: tuple[str, ...] = CONTACT_LAWS) -> list[Job]:
     """Every (engine, effect, magnitude, seed) job, then ``nulls`` nulls per engine (seeds cycled),
-    then with ``pairs`` every pair of the engine's effects hidden together at their realistic
+    then with ``pairs`` every pair of the effects hidden together at their realistic
     magnitudes, one dataset each (seeds cycled). MuJoCo's runs are made with its
     ``mujoco_contact`` configuration and diagnosed with the model's ``mujoco_law`` (``"choose"``:
     choosing among ``laws``); this
@@ -373,18 +373,17 @@ def jobs_for(engines: list[str], effects: list[str], levels: list[str], seeds: l
     library = EffectLibrary()
     out = []
     for engine in engines:
-        mine = [e for e in effects if engine == "sim" or e in EFFECT_OPTIONS]
         law = mujoco_law if engine == "mujoco" else "compliant"
         job = functools.partial(Job, duration_s=duration_s, contact_law=law, laws=laws if law == "choose" else (),
                                 mujoco_contact=mujoco_contact if engine == "mujoco" else None, current=current)
-        for effect in mine:
+        for effect in effects:
             for level in levels:
                 magnitude = library[effect].realistic if level == "realistic" else near_limit(effect, duration_s)
                 out += [job(engine, effect, magnitude, level, seed) for seed in seeds]
         out += [job(engine, None, None, "null", seeds[k % len(seeds)] + 1000 * (k // len(seeds))) for k in range(nulls)]
         if pairs:
             out += [job(engine, PAIR_SEP.join(pair), None, "pair", seeds[k % len(seeds)])
-                    for k, pair in enumerate(itertools.combinations(mine, 2))]
+                    for k, pair in enumerate(itertools.combinations(effects, 2))]
     return out
 
 

@@ -40,7 +40,6 @@ from cobra_model.run import Run  # noqa: E402
 from sysid.identification.objective import SENSOR_NOISE  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.generators.dataset import MOCAP_NOISE_M  # noqa: E402
-from sysid.generators.mujoco_recording import EFFECT_OPTIONS  # noqa: E402
 
 #: RMS of the encoders' quantisation error [rad]: one count, uniformly distributed.
 ENCODER_FLOOR_RAD = SENSOR_NOISE["joints"]
@@ -71,10 +70,9 @@ def main(argv: list[str] | None = None) -> None:
     model, library = CobraModel.load(), EffectLibrary()
     rows = []
     for engine in engines:
-        effects = [e for e in library.names if engine == "sim" or e in EFFECT_OPTIONS]
         for seed in seeds:
             base = make_runs(Job(engine, None, None, "null", seed, DURATION_S), model)
-            for effect in effects:
+            for effect in library.names:
                 for level, magnitude in (("realistic", library[effect].realistic), ("near_limit", near_limit(effect, DURATION_S))):
                     joints, head = signal(make_runs(Job(engine, effect, magnitude, level, seed, DURATION_S), model), base)
                     rows.append({"engine": engine, "effect": effect, "level": level, "magnitude": magnitude,

@@ -83,6 +83,15 @@ class TwinOptions:
             run logs them when sent).
         encoder_offset: every encoder reads the joint angle plus this [rad], and the servo loop
             holds its goal in readings (:func:`sysid.generators.mujoco_recording.record_mujoco`).
+        backlash: half-width [rad] of the play in each servo's gear train (0: none). Each joint
+            becomes two hinges on its axis: the motor side (the armature, damping and friction
+            loss, driven by the actuator) and, in series, the output, free within
+            ``+-backlash`` of the motor (a limit as stiff as the time step resolves, two steps:
+            gear teeth in contact), which carries the link and which the encoder reads; the
+            servo loop acts on that reading (:func:`sysid.generators.mujoco_recording.rollout_with_torques`,
+            addresses from :func:`joint_addresses`). While the play is crossed the motor turns
+            with its own inertia only and the link is driven by nothing but its load: gear play
+            as a Dynamixel has it, its encoder on the output shaft.
         payload: mass added to the head module [kg] (negative: removed), at the head's centre of
             mass with its rotational inertia scaled by the new mass over the URDF's, as our
             model's ``link_mass_error`` changes it (``cobra_model.model.RobotModel.with_link_mass``).
@@ -112,6 +121,7 @@ class TwinOptions:
     timestep: float = 1e-3
     command_delay: float = 0.0
     encoder_offset: float = 0.0
+    backlash: float = 0.0
     payload: float = 0.0
     self_collision: bool = True
 
@@ -147,6 +157,8 @@ class TwinOptions:
             raise InputError(f"TwinOptions.command_delay must be in [0, 1) s, got {self.command_delay}")
         if not abs(self.encoder_offset) < 0.5:
             raise InputError(f"TwinOptions.encoder_offset must be within +-0.5 rad, got {self.encoder_offset}")
+        if not 0 <= self.backlash < 0.2:
+            raise InputError(f"TwinOptions.backlash must be a half-width in [0, 0.2) rad, got {self.backlash}")
         if not np.isfinite(self.payload):
             raise InputError(f"TwinOptions.payload must be a finite mass [kg], got {self.payload}")
 
@@ -186,11 +198,16 @@ def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelP
                              f"{root.mass:g} kg in {urdf}) no positive mass")
         scale = mass / root.mass  # the URDF gives the inertia as fullinertia, MjSpec keeps both forms
         root.mass, root.fullinertia, root.inertia = mass, root.fullinertia * scale, root.inertia * scale
-    for j in spec.joints:
-        if j.type == mujoco.mjtJoint.mjJNT_HINGE:
-            j.armature = options.armature
-            j.damping = np.array([options.damping, 0.0, 0.0])  # MuJoCo 4: linear term first
-            j.frictionloss = options.frictionloss
+    servo_joints = [j for j in spec.joints if j.type == mujoco.mjtJoint.mjJNT_HINGE]
+    for j in servo_joints:
+        j.armature = options.armature
+        j.damping = np.array([options.damping, 0.0, 0.0])  # MuJoCo 4: linear term first
+        j.frictionloss = options.frictionloss
+        if options.backlash:  # the output after the motor, in the same body: its angle adds to the motor's
+            j.parent.add_joint(name=f"{j.name}{PLAY_SUFFIX}", type=mujoco.mjtJoint.mjJNT_HINGE, axis=j.axis,
+                               pos=j.pos, limited=mujoco.mjtLimited.mjLIMITED_TRUE,
+                               range=[-options.backlash, options.backlash],
+                               solref_limit=[2 * options.timestep, 1.0], solimp_limit=[0.99, 0.99, 0.001, 0.5, 2.0])
     for g in spec.geoms:
         g.friction = options.friction
         g.solref, g.solimp = options.solref, options.solimp
@@ -203,15 +220,31 @@ def build(urdf: str | Path, options: TwinOptions = TwinOptions(), params: ModelP
         _capsule_ground_pairs(mujoco, spec, options)
     if options.actuators:
         kp, kv = servo_stiffness_damping(params or ModelParameters.nominal())
-        for j in spec.joints:
-            if j.type != mujoco.mjtJoint.mjJNT_HINGE:
-                continue
+        for j in servo_joints:
             a = spec.add_actuator(name=f"servo_{j.name}", target=j.name, trntype=mujoco.mjtTrn.mjTRN_JOINT)
             a.set_to_position(kp=kp, kv=kv)
             if options.forcerange is not None:
                 a.forcelimited = True
                 a.forcerange = [-options.forcerange, options.forcerange]
     return spec.compile()
+
+
+#: Name suffix of a joint's output hinge when the twin has backlash (``TwinOptions.backlash``).
+PLAY_SUFFIX = "_play"
+
+
+def joint_addresses(mj_model) -> tuple[np.ndarray, np.ndarray]:
+    """``qpos`` addresses of the servos' joints (the motor side, in the URDF's order) and of their
+    output hinges (``TwinOptions.backlash``; empty without backlash). A joint's angle, as the
+    encoder reads it and as our model's joint has it, is the sum of the two."""
+    mujoco = _mujoco()
+    servo, play = [], []
+    for k in range(mj_model.njnt):
+        if mj_model.jnt_type[k] != mujoco.mjtJoint.mjJNT_HINGE:
+            continue
+        name = mujoco.mj_id2name(mj_model, mujoco.mjtObj.mjOBJ_JOINT, k)
+        (play if name.endswith(PLAY_SUFFIX) else servo).append(mj_model.jnt_qposadr[k])
+    return np.array(servo, dtype=int), np.array(play, dtype=int)
 
 
 def _capsule_ground_pairs(mujoco, spec, options: TwinOptions) -> None:

@@ -34,14 +34,13 @@ def _row(engine: str, effect: str | None, named: str | None, shrink: float = 0.9
             "joint_rmse_before_rad": joints_before, "joint_rmse_after_rad": joints_before * kept}
 
 
-def test_jobs_cover_each_effect_level_and_seed_and_skip_what_mujoco_cannot_express() -> None:
+def test_jobs_cover_each_effect_level_and_seed_on_both_engines() -> None:
     jobs = jobs_for(["sim", "mujoco"], ["backlash", "actuator_delay"], ["realistic", "near_limit"], [31, 32], 3, 3.0)
     sim = [j for j in jobs if j.engine == "sim"]
     mujoco = [j for j in jobs if j.engine == "mujoco"]
-    assert len(sim) == 2 * 2 * 2 + 3 and len(mujoco) == 1 * 2 * 2 + 3  # no backlash in MuJoCo's twin
-    assert "backlash" not in EFFECT_OPTIONS
-    # every other library effect is expressed on MuJoCo's side, by an option of the twin
-    assert set(EFFECT_OPTIONS) == set(EffectLibrary().names) - {"backlash"}
+    assert len(sim) == len(mujoco) == 2 * 2 * 2 + 3
+    # every library effect is expressed on MuJoCo's side, by an option of the twin
+    assert set(EFFECT_OPTIONS) == set(EffectLibrary().names)
     assert all(hasattr(MUJOCO_CONTACTS["twin"], option) for option in EFFECT_OPTIONS.values())
     nulls = [j for j in sim if j.effect is None]
     assert [j.seed for j in nulls] == [31, 32, 1031]  # distinct data for every null
@@ -78,13 +77,13 @@ def test_near_limit_magnitudes_are_a_quarter_of_the_way_from_where_each_effect_s
     assert joints > ENCODER_FLOOR_RAD and head > 3 * HEAD_FLOOR_M
 
 
-def test_pairs_hide_every_two_effects_an_engine_expresses_at_their_realistic_magnitudes() -> None:
+def test_pairs_hide_every_two_effects_at_their_realistic_magnitudes_on_both_engines() -> None:
     effects = ["backlash", "actuator_delay", "encoder_offset"]
     jobs = [j for j in jobs_for(["sim", "mujoco"], effects, ["realistic"], [31, 32], 0, 3.0, pairs=True)
             if j.level == "pair"]
     assert sorted(j.effect for j in jobs if j.engine == "sim") == [
         "actuator_delay+encoder_offset", "backlash+actuator_delay", "backlash+encoder_offset"]
-    assert [j.effect for j in jobs if j.engine == "mujoco"] == ["actuator_delay+encoder_offset"]  # no backlash
+    assert [j.effect for j in jobs if j.engine == "mujoco"] == [j.effect for j in jobs if j.engine == "sim"]
     assert [j.seed for j in jobs if j.engine == "sim"] == [31, 32, 31]
     assert jobs[0].hidden == {"backlash": 0.02, "actuator_delay": 0.04}
     assert Job("sim", "backlash", 0.005, "near_limit", 31, 3.0).hidden == {"backlash": 0.005}

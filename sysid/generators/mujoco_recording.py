@@ -66,10 +66,13 @@ def twin_options(params: ModelParameters) -> TwinOptions:
 #: value in the same unit as the effect's parameter: joint ``frictionloss`` [N m], actuator
 #: ``forcerange`` [N m], commands delayed in a buffer [s], encoders offset [rad], the ratio of
 #: sideways to along-body ground friction of the body-aligned contact pairs, a payload on the
-#: head body [kg]. Backlash has none: MuJoCo has no joint play short of a second joint per module.
+#: head body [kg], play in the gear train between the motor and the encoder's output [rad]
+#: (a second hinge per joint: ``TwinOptions.backlash``; our model's is a dead zone on the servo
+#: loop's error, another structure for the same play).
 EFFECT_OPTIONS = {"joint_coulomb_friction": "frictionloss", "torque_saturation": "forcerange",
                   "actuator_delay": "command_delay", "encoder_offset": "encoder_offset",
-                  "anisotropic_ground_friction": "lateral_friction_ratio", "link_mass_error": "payload"}
+                  "anisotropic_ground_friction": "lateral_friction_ratio", "link_mass_error": "payload",
+                  "backlash": "backlash"}
 
 
 def with_effects(options: TwinOptions, effects: Mapping[str, float]) -> TwinOptions:
@@ -171,7 +174,8 @@ def rollout_with_torques(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callab
 
     Returns:
         ``(t, q, q_joints, torque)``: times (N,) [s], configurations (N, nq) in Pinocchio's
-        convention (world frame), joint angles (N, 11) [rad] and the servos' drive torques (N,
+        convention (world frame), joint angles (N, 11) [rad] (with backlash the outputs': motor
+        plus play, what the encoders read) and the servos' drive torques (N,
         11) [N m] (MuJoCo's ``actuator_force`` of the step before each sample, zero at the first).
 
     Raises:
@@ -188,16 +192,24 @@ def rollout_with_torques(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callab
     n_steps = int(round(duration_s / dt))
     goals = np.asarray(q_ref(np.arange(n_steps) * dt), dtype=float)
     data = mujoco.MjData(mj_model)
-    data.qpos[:], data.qvel[:] = mujoco_twin.pin_to_mj(np.asarray(q0, dtype=float), np.zeros(mj_model.nv))
+    servo, play = mujoco_twin.joint_addresses(mj_model)
+    qpos0, _ = mujoco_twin.pin_to_mj(np.asarray(q0, dtype=float), np.zeros(len(q0) - 1))
+    data.qpos[:7], data.qpos[servo] = qpos0[:7], qpos0[7:]   # at rest, any play centred
     qpos = np.empty((n_steps // record_every + 1, mj_model.nq))
     torque = np.empty((n_steps // record_every + 1, mj_model.nu))
     qpos[0], torque[0] = data.qpos, data.actuator_force
     for i in range(n_steps):
-        if error_limit_rad is None:
+        # the actuator drives the motor side towards its control; the loop acts on the reading
+        # (the output's angle, the motor's plus the play taken up), so the control is the motor's
+        # angle plus the loop's error (clipped where the duty saturates)
+        if error_limit_rad is None and not play.size:
             data.ctrl[:] = goals[i]
         else:
-            q_now = data.qpos[7:]
-            data.ctrl[:] = q_now + np.clip(goals[i] - q_now, -error_limit_rad, error_limit_rad)
+            motor = data.qpos[servo]
+            error = goals[i] - (motor + data.qpos[play] if play.size else motor)
+            if error_limit_rad is not None:
+                error = np.clip(error, -error_limit_rad, error_limit_rad)
+            data.ctrl[:] = motor + error
         mujoco.mj_step(mj_model, data)
         if (i + 1) % record_every == 0:
             qpos[(i + 1) // record_every] = data.qpos
@@ -208,9 +220,11 @@ def rollout_with_torques(mj_model: mujoco.MjModel, q0: np.ndarray, q_ref: Callab
     if bad.number:
         raise SimulationDiverged(f"MuJoCo reported bad accelerations {bad.number} time(s) (last at degree of "
                                  f"freedom {bad.lastinfo}) and reset the state: the twin diverged")
-    zero_v = np.zeros(mj_model.nv)
-    q = np.array([mujoco_twin.mj_to_pin(row, zero_v)[0] for row in qpos])
-    return np.arange(len(qpos)) * record_every * dt, q, qpos[:, 7:].copy(), torque
+    q_joints = qpos[:, servo] + qpos[:, play] if play.size else qpos[:, servo]
+    zero_v = np.zeros(6 + len(servo))
+    q = np.array([mujoco_twin.mj_to_pin(np.concatenate([row[:7], angles]), zero_v)[0]
+                  for row, angles in zip(qpos, q_joints)])
+    return np.arange(len(qpos)) * record_every * dt, q, q_joints, torque
 
 
 def true_trajectory(run_plan: RunPlan, options: TwinOptions, model: CobraModel,
@@ -287,5 +301,5 @@ def describe(options: TwinOptions) -> str:
              f"contact {options.contact}", f"servo {options.servo}", f"cone {options.cone}",
              f"impratio {options.impratio:g}", f"solref {options.solref}", f"solimp {options.solimp}",
              f"command delay {options.command_delay:g} s", f"encoder offset {options.encoder_offset:g} rad",
-             f"head payload {options.payload:g} kg"]
+             f"gear backlash {options.backlash:g} rad", f"head payload {options.payload:g} kg"]
     return ", ".join(parts)
