@@ -506,6 +506,10 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # rough; the soft laws keep Pinocchio's pass (their inverse mass matrix comes from it)
     ("2026-12-07T09:16", "5a8059d", "COBRA's generated ABA (compliant law's last bits)",
      COMPLIANT_LAW_FILES),
+    # MuJoCo's twin expresses backlash (gear play: a second hinge per joint, the encoder on the
+    # output): its matrices and signal table hide it too (seven effects, 21 pairs: the pairs'
+    # seeds, cycled, moved)
+    ("2026-12-07T11:31", "b36600d", "gear backlash hidden on MuJoCo's side too", MATRIX_FILES + ("effect_signal",)),
 )
 
 
