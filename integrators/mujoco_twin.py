@@ -86,8 +86,9 @@ class TwinOptions:
         backlash: half-width [rad] of the play in each servo's gear train (0: none). Each joint
             becomes two hinges on its axis: the motor side (the armature, damping and friction
             loss, driven by the actuator) and, in series, the output, free within
-            ``+-backlash`` of the motor (a limit as stiff as the time step resolves, two steps:
-            gear teeth in contact), which carries the link and which the encoder reads; the
+            ``+-backlash`` of the motor (gear teeth in contact: a joint limit as stiff as the
+            time step resolves, time constant two steps, impedance 0.99), which carries the link
+            and which the encoder reads; the
             servo loop acts on that reading (:func:`sysid.generators.mujoco_recording.rollout_with_torques`,
             addresses from :func:`joint_addresses`). While the play is crossed the motor turns
             with its own inertia only and the link is driven by nothing but its load: gear play

@@ -200,7 +200,7 @@ def test_gear_backlash_is_play_between_the_motor_and_the_encoders_output(cobra, 
     output in series, in the same body, free within +-b of the motor. Over a run every joint's
     play is taken up both ways (the load on each joint reverses within a gait cycle) and the
     gears' stop holds it: past b only by what an impact carries into a limit of two time steps
-    (measured up to 0.21 b at b = 0.02 rad; bound 0.3 b).
+    (measured over the 6 s run: up to 0.20 b at b = 0.02 rad; bound 0.3 b).
 
     The loop acts on the output's reading, so it takes the play up: the readings follow their
     commands about as closely as without play (measured RMS 0.0952 -> 0.0954 rad at b = 0.02;
