@@ -27,7 +27,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from cobra_model import CobraModel  # noqa: E402
+from cobra_model.model import DEFAULT_URDF, CobraModel  # noqa: E402
 from cobra_model.pinocchio_fields import model_fields  # noqa: E402
 
 
@@ -49,10 +49,10 @@ def compile_generator(build: Path) -> Path:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--urdf", type=Path, default=None, help="robot file (default: urdf/cobra.urdf)")
+    parser.add_argument("--urdf", type=Path, default=DEFAULT_URDF, help="robot file (default: urdf/cobra.urdf)")
     args = parser.parse_args(argv)
     try:
-        f = model_fields(CobraModel.load(args.urdf) if args.urdf is not None else CobraModel.load())
+        f = model_fields(CobraModel.load(args.urdf))
     except (OSError, ValueError) as exc:  # a missing or unreadable file, a joint type _aba.cpp does not build
         parser.error(f"--urdf {args.urdf}: {exc}")
     rows = np.hstack([f.code[:, None], f.parent[:, None], f.placement, f.inertia, f.axis])
