@@ -38,12 +38,29 @@ using VectorXd = Eigen::VectorXd;
 using ConstRef = Eigen::Ref<const VectorXd>;
 
 // A model, and, when the generated ABA serves it, that code's inputs: inertias (10 per joint),
-// armature (nv), gravity (3); empty otherwise.
+// gravity (3); empty otherwise. The armature is an argument of every call (a servo whose gear
+// play is open carries none: integrators/kernels.py, gear_step).
 struct Native {
   Model model;
   bool generated = false;
-  std::vector<double> inertia, armature, gravity;
+  std::vector<double> inertia, gravity;
 };
+
+// One rollout's workspace: Pinocchio's Data and a copy of the model whose armature the call's
+// is written into before Pinocchio's pass, so that rollouts stepping on several threads at once
+// with other armatures do not share a model they write.
+struct Workspace {
+  Model model;
+  Data data;
+  explicit Workspace(const Model& m) : model(m), data(m) {}
+};
+
+// `ws.model` with the armature `armature` (nv,) (written only where it differs).
+const Model& with_armature(Workspace& ws, const double* armature) {
+  Eigen::Map<const VectorXd> arm(armature, ws.model.nv);
+  if (ws.model.armature != arm) ws.model.armature = arm;
+  return ws.model;
+}
 
 // Whether joints 1..n (code, parent, placement, axis) are those _aba_cobra.c was generated for.
 bool generated_structure(int32_t n, const int32_t* code, const int32_t* parent, const double* placement,
@@ -79,7 +96,6 @@ intptr_t cobra_model_new(int32_t n, const int32_t* code, const int32_t* parent, 
   native->generated = generated_structure(n, code, parent, placement, axis);
   if (native->generated) {
     native->inertia.assign(inertia, inertia + 10 * n);
-    native->armature.assign(armature, armature + native->model.nv);
     native->gravity.assign(gravity, gravity + 3);
   }
   return reinterpret_cast<intptr_t>(native);
@@ -90,48 +106,52 @@ void cobra_model_free(intptr_t model) { delete reinterpret_cast<Native*>(model);
 // 1 when the model's ABA is the generated one, 0 when it is Pinocchio's.
 int32_t cobra_model_generated(intptr_t model) { return reinterpret_cast<Native*>(model)->generated ? 1 : 0; }
 
-// Pinocchio's workspace for `model`; one per environment that steps in parallel.
+// A workspace for `model` (Pinocchio's Data and a model copy); one per environment that steps in parallel.
 intptr_t cobra_data_new(intptr_t model) {
-  return reinterpret_cast<intptr_t>(new Data(reinterpret_cast<Native*>(model)->model));
+  return reinterpret_cast<intptr_t>(new Workspace(reinterpret_cast<Native*>(model)->model));
 }
 
-void cobra_data_free(intptr_t data) { delete reinterpret_cast<Data*>(data); }
+void cobra_data_free(intptr_t data) { delete reinterpret_cast<Workspace*>(data); }
 
-// The acceleration a (nv,) = ABA(q (nq,), v (nv,), tau (nv,)) in Pinocchio's WORLD convention,
-// as `pin.aba(model, data, q, v, tau, pin.Convention.WORLD)` (the generated code: to roundoff).
+// The acceleration a (nv,) = ABA(q (nq,), v (nv,), tau (nv,)) of the model with the armature
+// `armature` (nv,) [kg m^2] in Pinocchio's WORLD convention, as `pin.aba(model, data, q, v, tau,
+// pin.Convention.WORLD)` on that model (the generated code: to roundoff).
 // The joint accelerations are the LOCAL convention's to roundoff; WORLD accumulates the
 // articulated inertias in the world frame, so the backward pass does not carry each one through
 // its joint's placement (a 6x6 congruence per joint), and costs 12-14 % less on COBRA. Returns 0.
-int32_t cobra_aba(intptr_t model, intptr_t data, const double* q, const double* v, const double* tau, double* a) {
+int32_t cobra_aba(intptr_t model, intptr_t data, const double* q, const double* v, const double* tau,
+                  const double* armature, double* a) {
   const Native& n = *reinterpret_cast<Native*>(model);
   if (n.generated) {
-    const double* arg[6] = {q, v, tau, n.inertia.data(), n.armature.data(), n.gravity.data()};
+    const double* arg[6] = {q, v, tau, n.inertia.data(), armature, n.gravity.data()};
     double* res[1] = {a};
     return cobra_codegen_aba(arg, res, nullptr, nullptr, 0);  // stateless: no work arrays
   }
-  const Model& m = n.model;
-  Data& d = *reinterpret_cast<Data*>(data);
+  Workspace& ws = *reinterpret_cast<Workspace*>(data);
+  const Model& m = with_armature(ws, armature);
   const ConstRef qr = Eigen::Map<const VectorXd>(q, m.nq);
   const ConstRef vr = Eigen::Map<const VectorXd>(v, m.nv);
   const ConstRef tr = Eigen::Map<const VectorXd>(tau, m.nv);
-  Eigen::Map<VectorXd>(a, m.nv) = pinocchio::aba(m, d, qr, vr, tr, pinocchio::Convention::WORLD);
+  Eigen::Map<VectorXd>(a, m.nv) = pinocchio::aba(m, ws.data, qr, vr, tr, pinocchio::Convention::WORLD);
   return 0;
 }
 
 // For the soft-constraint contact: the acceleration without contact a (nv,) = ABA(q, v, tau)
 // and D(q)^-1 into minv (nv x nv, row-major; its upper triangle, as Pinocchio fills it) from one
-// articulated-body pass, as `pin.aba(model, data, q, v, tau, pin.Convention.WORLD)` then
-// `pin.computeMinverse(model, data)`, which reuses that pass's articulated inertias: always
-// Pinocchio's pass, generated structure or not. Returns 0.
+// articulated-body pass of the model with the armature `armature` (nv,), as
+// `pin.aba(model, data, q, v, tau, pin.Convention.WORLD)` then `pin.computeMinverse(model, data)`,
+// which reuses that pass's articulated inertias: always Pinocchio's pass, generated structure or
+// not. Returns 0.
 int32_t cobra_aba_minverse(intptr_t model, intptr_t data, const double* q, const double* v, const double* tau,
-                           double* a, double* minv) {
-  const Model& m = reinterpret_cast<Native*>(model)->model;
-  Data& d = *reinterpret_cast<Data*>(data);
+                           const double* armature, double* a, double* minv) {
+  (void)model;  // the workspace holds its copy
+  Workspace& ws = *reinterpret_cast<Workspace*>(data);
+  const Model& m = with_armature(ws, armature);
   const ConstRef qr = Eigen::Map<const VectorXd>(q, m.nq);
   const ConstRef vr = Eigen::Map<const VectorXd>(v, m.nv);
   const ConstRef tr = Eigen::Map<const VectorXd>(tau, m.nv);
-  Eigen::Map<VectorXd>(a, m.nv) = pinocchio::aba(m, d, qr, vr, tr, pinocchio::Convention::WORLD);
-  Eigen::Map<Data::RowMatrixXs>(minv, m.nv, m.nv) = pinocchio::computeMinverse(m, d);
+  Eigen::Map<VectorXd>(a, m.nv) = pinocchio::aba(m, ws.data, qr, vr, tr, pinocchio::Convention::WORLD);
+  Eigen::Map<Data::RowMatrixXs>(minv, m.nv, m.nv) = pinocchio::computeMinverse(m, ws.data);
   return 0;
 }
 

@@ -24,7 +24,7 @@ from cobra_model.parameters import ModelParameters
 from integrators import kernels as K
 from integrators import native
 from integrators.rollout_memo import KeptRollout, active_memo
-from integrators.simulator import SimSettings, SimState, SimulationDiverged, Simulator, contact_resolved
+from integrators.simulator import SimSettings, SimState, SimulationDiverged, Simulator, contact_resolved, servo_memory
 
 #: What a batch does when an environment diverges (:meth:`BatchSimulator.rollout`).
 Divergence = Literal["raise", "mask"]
@@ -208,8 +208,9 @@ class BatchSimulator:
         Q = np.ascontiguousarray(np.stack([st.q for st in states]), dtype=float)
         V = np.ascontiguousarray(np.stack([st.v for st in states]), dtype=float)
         A = np.zeros((n, nv))
-        # the servo loops' integral, previous error, duty and motor current (zero before the first step)
-        servo = np.ascontiguousarray(np.stack([np.array([st.integ, st.prev_err, st.duty, np.zeros(nj)], dtype=float)
+        # the servo loops' integral, previous error, duty and motor current (zero before the first
+        # step) and their gear plays, centred
+        servo = np.ascontiguousarray(np.stack([servo_memory(st, self.model.n_base, with_current=False)
                                                for st in states]))
         plan = np.zeros((n, K.N_PLAN), dtype=np.int64)
         plan[:, [K.P_SUBSTEPS, K.P_RECORD_EVERY, K.P_INTEGRATE, K.P_FLOATING]] = (

@@ -52,8 +52,19 @@ G_K1, G_K2, G_MU_C, G_MU_S, G_MU_V, G_V_S, G_EPS, G_LATERAL, G_CONE, G_ROUND, G_
 N_GROUND = 11
 
 # Indices into the per-joint actuator array ``act`` (shape (n_joints, N_ACT)).
-A_DAMPING, A_RKM, A_COULOMB, A_TAU_MAX, A_COULOMB_EPS, A_ENC_OFFSET, A_BACKLASH = range(7)
-N_ACT = 7
+A_DAMPING, A_RKM, A_COULOMB, A_TAU_MAX, A_COULOMB_EPS, A_ENC_OFFSET, A_BACKLASH, A_ARMATURE = range(8)
+N_ACT = 8
+
+#: Rows of a rollout's servo memory ``servo`` (N_SERVO, n_joints): the position loop's integral
+#: and previous error [pulses], the held duty, the motor current [A], then the gear play's state
+#: (:func:`gear_step`; rows ``SV_GEAR:``, indexed by ``GEAR_*``).
+SV_INTEG, SV_PREV_ERR, SV_DUTY, SV_CURRENT, SV_GEAR = range(5)
+#: The gear play's rows: the motor's angle less the output's [rad] (within +-backlash), the
+#: motor's rate [rad/s], which tooth flank is in contact (+1, -1; 0 while the play is open), the
+#: motor's net torque in the last step [N m] and the impact torque owed to the next step [N m].
+GEAR_GAP, GEAR_RATE, GEAR_ENGAGED, GEAR_TORQUE, GEAR_IMPULSE = range(5)
+N_GEAR = 5
+N_SERVO = SV_GEAR + N_GEAR
 
 #: The parameters of the effects these kernels model beyond the nominal table
 #: (``sysid.discrepancy.effects`` names them): unit, bounds and the value at which the kernel's
@@ -61,7 +72,7 @@ N_ACT = 7
 EFFECT_PARAMETERS: tuple[Parameter, ...] = (
     Parameter("joint_coulomb", "N m", 0.0, 0.0, 3.0, group="joint_coulomb_friction",
               doc="Coulomb friction torque of the gearbox"),
-    Parameter("backlash", "rad", 0.0, 0.0, 0.2, group="backlash", doc="half-width of the transmission dead zone"),
+    Parameter("backlash", "rad", 0.0, 0.0, 0.2, group="backlash", doc="half-width of the gear train's play"),
     # inactive at the stall torque: the motor cannot exceed it at the nominal constant, and the
     # URDF's effort limit (which MuJoCo enforces) is the same 9.9 N m
     Parameter("torque_limit", "N m", SERVO_STALL_TORQUE_NM, 0.5, SERVO_STALL_TORQUE_NM,
@@ -408,21 +419,30 @@ def servo_duty(j, err_rad, integ, prev_err, kp, ki, kd, pwm_limit, duty_out):
 
 
 @njit(cache=True, inline="always")
-def actuator_torques(duty, v, torque_on, act, voltage, resistance, tau, current_out):
+def actuator_torques(duty, v, torque_on, act, voltage, resistance, tau, current_out, gear):
     """Spong's DC motor behind the gearbox, at the joint.
 
-    ``i = (duty V - r Km qdot) / R`` [A], ``tau = r Km i - b qdot - tau_c tanh(qdot / eps_c)``
-    with the motor torque ``r Km i`` clipped at ``tau_max`` [N m] as a current limit clips it:
-    the current too, at ``tau_max / (r Km)`` (``act`` columns: damping b, r*Km, Coulomb tau_c,
-    tau_max, eps_c). With torque off the motor circuit is open: no motor torque, no current.
+    ``i = (duty V - r Km w) / R`` [A], ``tau = r Km i - b w - tau_c tanh(w / eps_c)`` at the
+    motor's rate ``w`` (the joint's, but for a gear play that is open) with the motor torque
+    ``r Km i`` clipped at ``tau_max`` [N m] as a current limit clips it: the current too, at
+    ``tau_max / (r Km)`` (``act`` columns: damping b, r*Km, Coulomb tau_c, tau_max, eps_c). With
+    torque off the motor circuit is open: no motor torque, no current.
     ``v`` (nv,) and ``tau`` (nv,): the joints' rates and torques are their last ``nj`` entries
     (``duty`` (nj,)), read and written in place (a slice would be a view, see the module's docstring).
+
+    A joint with a gear play (``act[:, A_BACKLASH] > 0``; ``gear``: the rows of
+    :func:`gear_step`) passes that torque to its output only while a tooth flank is in contact,
+    plus the impact torque of a play that closed in the last step (consumed here); while the
+    play is open the output gets none and the torque turns the motor alone
+    (``gear[GEAR_TORQUE]``, which :func:`gear_step` integrates).
     """
     nbase = v.shape[0] - duty.shape[0]
     for j in range(duty.shape[0]):
+        play = act[j, A_BACKLASH] > 0.0
+        w = gear[GEAR_RATE, j] if play and gear[GEAR_ENGAGED, j] == 0.0 else v[nbase + j]
         rkm = act[j, A_RKM]
         if torque_on[j]:
-            i = (duty[j] * voltage - rkm * v[nbase + j]) / resistance
+            i = (duty[j] * voltage - rkm * w) / resistance
         else:
             i = 0.0
         t = rkm * i
@@ -433,11 +453,81 @@ def actuator_torques(duty, v, torque_on, act, voltage, resistance, tau, current_
         elif t < -tmax:
             t = -tmax
             i = -tmax / rkm
-        t -= act[j, A_DAMPING] * v[nbase + j]
+        t -= act[j, A_DAMPING] * w
         if act[j, A_COULOMB] > 0.0:
-            t -= act[j, A_COULOMB] * np.tanh(v[nbase + j] / act[j, A_COULOMB_EPS])
+            t -= act[j, A_COULOMB] * np.tanh(w / act[j, A_COULOMB_EPS])
+        if play:
+            t += gear[GEAR_IMPULSE, j]
+            gear[GEAR_IMPULSE, j] = 0.0
+            gear[GEAR_TORQUE, j] = t
+            if gear[GEAR_ENGAGED, j] == 0.0:
+                t = 0.0
         tau[nbase + j] = t
         current_out[j] = i
+
+
+@njit(cache=True, inline="always")
+def gear_step(v, a, act, dt, gear, armature):
+    """The gear play of every joint with one (``act[:, A_BACKLASH]`` = its half-width b > 0 [rad])
+    after a step that produced the acceleration ``a`` (nv,) and the new velocity ``v`` (nv,).
+
+    The motor (its reflected inertia ``act[:, A_ARMATURE]`` = I [kg m^2]) and the joint's output
+    are two bodies on one axis, a play of +-b between the teeth; the encoder reads the output (a
+    Dynamixel's sits on its output shaft), so the position loop acts on the output's angle.
+
+    - Flank in contact (``gear[GEAR_ENGAGED]`` = s = +-1): motor and output move as one, the
+      motor's inertia on the joint's diagonal (``armature``, what the next ABA takes) and its
+      torque ``T`` on the joint (:func:`actuator_torques`). The teeth pass ``f = T - I a_j``; when
+      it would pull (``s f < 0``) the play opens: the motor keeps the joint's rate.
+    - Play open: the output carries no motor inertia and no torque; the motor turns alone,
+      ``I dw/dt = T`` (semi-implicit Euler), and the gap ``motor - output`` moves by
+      ``dt (w - v_j)``. When it reaches +-b the teeth meet in a plastic impact: the motor's
+      momentum relative to the output, ``I (w - v_j)``, is owed to the next step as the torque
+      ``I (w - v_j) / dt`` on the joint with the inertia back on its diagonal, which is momentum
+      conservation for the joined bodies (``D v+ = D v + I (w - v_j) e_j``).
+
+    ``gear`` (N_GEAR, nj) and ``armature`` (nv,) are updated in place; a joint without play is
+    left alone (its armature stays on the diagonal).
+    """
+    nj = act.shape[0]
+    nbase = v.shape[0] - nj
+    for j in range(nj):
+        b = act[j, A_BACKLASH]
+        if b <= 0.0:
+            continue
+        inertia = act[j, A_ARMATURE]
+        vj = v[nbase + j]
+        s = gear[GEAR_ENGAGED, j]
+        if s != 0.0:
+            if s * (gear[GEAR_TORQUE, j] - inertia * a[nbase + j]) < 0.0:
+                gear[GEAR_ENGAGED, j] = 0.0
+                armature[nbase + j] = 0.0
+            gear[GEAR_RATE, j] = vj
+            continue
+        w = gear[GEAR_RATE, j] + dt * gear[GEAR_TORQUE, j] / inertia
+        gap = gear[GEAR_GAP, j] + dt * (w - vj)
+        if gap >= b or gap <= -b:
+            s = 1.0 if gap > 0.0 else -1.0
+            gear[GEAR_ENGAGED, j] = s
+            gear[GEAR_IMPULSE, j] = inertia * (w - vj) / dt
+            armature[nbase + j] = inertia
+            gap = s * b
+            w = vj
+        gear[GEAR_GAP, j] = gap
+        gear[GEAR_RATE, j] = w
+
+
+@njit(cache=True, inline="always")
+def gear_armature(act, gear, nv, armature):
+    """The armature (nv,) [kg m^2] the ABA takes in the gear state ``gear``: each joint's motor
+    inertia ``act[:, A_ARMATURE]``, but none where the joint's gear play is open; zero on the
+    root's coordinates."""
+    nj = act.shape[0]
+    for i in range(nv - nj):
+        armature[i] = 0.0
+    for j in range(nj):
+        open_play = act[j, A_BACKLASH] > 0.0 and gear[GEAR_ENGAGED, j] == 0.0
+        armature[nv - nj + j] = 0.0 if open_play else act[j, A_ARMATURE]
 
 
 @njit(cache=True, inline="always")
@@ -454,25 +544,17 @@ def check_state(v, max_speed):
 
 @njit(cache=True, inline="always")
 def control_tick(q, goal, act, scal, integ, prev_err, duty):
-    """One tick of every servo's position loop (backlash as a dead zone on the error)."""
+    """One tick of every servo's position loop on its encoder's reading of the joint's output."""
     nj = act.shape[0]
     nq = q.shape[0]
     for j in range(nj):
         err = goal[j] - (q[nq - nj + j] + act[j, A_ENC_OFFSET])  # the encoder's reading
-        b = act[j, A_BACKLASH]
-        if b > 0.0:
-            if err > b:
-                err -= b
-            elif err < -b:
-                err += b
-            else:
-                err = 0.0
         servo_duty(j, err, integ, prev_err, scal[S_KP], scal[S_KI], scal[S_KD], scal[S_PWM_LIMIT], duty)
 
 
 @njit(cache=True, inline="always")
 def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_R, chain_f,
-                       feat_i, feat_f, tau, current, X, F, kin_R, kin_v):
+                       feat_i, feat_f, tau, current, X, F, kin_R, kin_v, gear):
     """Actuator torques and ground forces as one generalized force ``tau`` (nv,); returns a status.
 
     ``chain_i`` (nb, 3) = parent, q index, v index; ``chain_R`` (nb, 3, 3) = placement rotation;
@@ -483,7 +565,7 @@ def generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain
     nbase = v.shape[0] - act.shape[0]
     for i in range(nbase):
         tau[i] = 0.0
-    actuator_torques(duty, v, torque_on, act, scal[S_VOLTAGE], scal[S_RESISTANCE], tau, current)
+    actuator_torques(duty, v, torque_on, act, scal[S_VOLTAGE], scal[S_RESISTANCE], tau, current, gear)
     return ground_forces(q, v, floating, chain_i, chain_R, chain_f, feat_i, feat_f, ground, tau, X, F,
                          scal[S_MAX_DEPTH], kin_R, kin_v)
 
@@ -543,12 +625,12 @@ def integrate(q, v, a, dt, floating, q_out, v_out):
 
 @njit(cache=True, inline="always")
 def pre_step(control, q, v, goal, integ, prev_err, duty, torque_on, act, scal, ground, floating,
-             chain_i, chain_R, chain_f, feat_i, feat_f, tau, current, X, F, kin_R, kin_v):
+             chain_i, chain_R, chain_f, feat_i, feat_f, tau, current, X, F, kin_R, kin_v, gear):
     """A servo tick (when ``control``) then :func:`generalized_forces`; returns the status."""
     if control:
         control_tick(q, goal, act, scal, integ, prev_err, duty)
     return generalized_forces(q, v, duty, torque_on, act, scal, ground, floating, chain_i, chain_R,
-                              chain_f, feat_i, feat_f, tau, current, X, F, kin_R, kin_v)
+                              chain_f, feat_i, feat_f, tau, current, X, F, kin_R, kin_v, gear)
 
 
 @njit(cache=True)
@@ -600,19 +682,24 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
     3. when ``i < plan[P_STEPS]``: :func:`pre_step` with the servo goals ``goals[i //
        plan[P_SUBSTEPS]]`` (the loop ticks on multiples of ``plan[P_SUBSTEPS]``) into ``tau``.
 
-    ``servo`` (4, nj) holds the position loops' integral, previous error, duty and the motor
-    current [A]; ``work`` is the flat workspace (:func:`workspace_views`). The arguments are
-    packed this way because each one costs a call from Python about 0.05 us. Returns 0, the
-    status of step 3, or minus the status of step 1.
+    ``servo`` (N_SERVO, nj) holds the position loops' integral, previous error, duty and the
+    motor current [A], then the gear play's state (rows ``SV_GEAR:``, :func:`gear_step`);
+    ``work`` is the flat workspace (:func:`workspace_views`). The arguments are packed this way
+    because each one costs a call from Python about 0.05 us. Returns 0, the status of step 3, or
+    minus the status of step 1. Used by the momentum-form step, which models no gear play
+    (``armature`` here is only the argument :func:`_step` takes; the simulator refuses the pair).
     """
     X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
-    return _step(i, plan, q, v, a, goals, servo[0], servo[1], servo[2], servo[3], torque_on, act, scal, ground,
-                 chain_i, chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
+    armature = np.empty(v.shape[0])
+    gear_armature(act, servo[SV_GEAR:], v.shape[0], armature)
+    return _step(i, plan, q, v, a, goals, servo[SV_INTEG], servo[SV_PREV_ERR], servo[SV_DUTY], servo[SV_CURRENT],
+                 servo[SV_GEAR:], armature, torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f,
+                 tau, X, F, kin_R, kin_v, record)
 
 
 @njit(cache=True)
-def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, act, scal, ground, chain_i, chain_R,
-          chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record):
+def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, gear, armature, torque_on, act, scal, ground,
+          chain_i, chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record):
     """:func:`rollout_step` on the views of the workspace and of ``servo``'s rows (a loop makes
     them once, not at every step: each view costs an atomic reference count).
 
@@ -623,6 +710,7 @@ def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, ac
     floating = plan[P_FLOATING] != 0
     if i > 0 and plan[P_INTEGRATE]:
         integrate(q, v, a, scal[S_DT], floating, q, v)
+        gear_step(v, a, act, scal[S_DT], gear, armature)
         status = check_state(v, scal[S_MAX_SPEED])
         if status:
             return -status
@@ -636,7 +724,7 @@ def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, ac
         return STATUS_OK
     return pre_step(i % plan[P_SUBSTEPS] == 0, q, v, goals[i // plan[P_SUBSTEPS]], integ, prev_err, duty,
                     torque_on, act, scal, ground, floating, chain_i, chain_R, chain_f, feat_i, feat_f, tau,
-                    current, X, F, kin_R, kin_v)
+                    current, X, F, kin_R, kin_v, gear)
 
 
 @njit(cache=True, inline="always")
@@ -665,10 +753,14 @@ def _rollout_loop(law, args):
     (start, stop, aba_model, aba_data, plan, q, v, a, goals, servo, torque_on, act, scal, ground,
      chain_i, chain_R, chain_f, feat_i, feat_f, tau, work, record, minv, body_weight, warm) = args
     X, F, kin_R, kin_v = workspace_views(work, feat_i.shape[0], chain_i.shape[0])
-    integ, prev_err, duty, current = servo[0], servo[1], servo[2], servo[3]
+    integ, prev_err, duty, current, gear = (servo[SV_INTEG], servo[SV_PREV_ERR], servo[SV_DUTY], servo[SV_CURRENT],
+                                            servo[SV_GEAR:])
+    # the armature the ABA takes: the motors' inertia, none on a joint whose gear play is open
+    armature = np.empty(v.shape[0])
+    gear_armature(act, gear, v.shape[0], armature)
     parents, vidx, f_body = chain_i[:, 0], chain_i[:, 2], feat_i[:, 0]  # the soft laws' columns
     # the arrays' addresses for Pinocchio, taken once (the loop updates the arrays in place)
-    qp, vp, taup, ap, minvp = q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes
+    qp, vp, taup, ap, minvp, armp = q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes, armature.ctypes
     floating = plan[P_FLOATING] != 0
     soft = law == LAW_SOFT_PYRAMID or law == LAW_SOFT_ELLIPTIC
     scratch = soft_scratch(feat_i.shape[0] if soft else 0, v.shape[0])
@@ -676,14 +768,14 @@ def _rollout_loop(law, args):
     elliptic = law == LAW_SOFT_ELLIPTIC
     cone_scratch = elliptic_scratch(feat_i.shape[0] if elliptic else 0, v.shape[0] if elliptic else 0)
     for i in range(start, stop):
-        status = _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, torque_on, act, scal, ground, chain_i,
-                       chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
+        status = _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, gear, armature, torque_on, act, scal,
+                       ground, chain_i, chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
         if status != STATUS_OK or i == plan[P_STEPS]:
             return status, i
         if law == LAW_COMPLIANT:
-            ABA(aba_model, aba_data, qp, vp, taup, ap)
+            ABA(aba_model, aba_data, qp, vp, taup, armp, ap)
         else:
-            ABA_MINVERSE(aba_model, aba_data, qp, vp, taup, ap, minvp)
+            ABA_MINVERSE(aba_model, aba_data, qp, vp, taup, armp, ap, minvp)
             if law == LAW_COMPLIANT_IMPLICIT:
                 implicit_friction_acceleration(v, minv, floating, parents, vidx, f_body, X, F, kin_R, kin_v, ground,
                                                scal[S_DT], a, friction)

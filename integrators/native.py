@@ -62,23 +62,26 @@ _lib.cobra_data_new.restype = ctypes.c_ssize_t
 _lib.cobra_data_new.argtypes = [ctypes.c_ssize_t]
 _lib.cobra_data_free.argtypes = [ctypes.c_ssize_t]
 _lib.cobra_aba.restype = ctypes.c_int32
-_lib.cobra_aba.argtypes = [ctypes.c_ssize_t, ctypes.c_ssize_t, _F64P, _F64P, _F64P, _F64P]
+_lib.cobra_aba.argtypes = [ctypes.c_ssize_t, ctypes.c_ssize_t, _F64P, _F64P, _F64P, _F64P, _F64P]
 _lib.cobra_aba_minverse.restype = ctypes.c_int32
-_lib.cobra_aba_minverse.argtypes = [ctypes.c_ssize_t, ctypes.c_ssize_t, _F64P, _F64P, _F64P, _F64P, _F64P]
+_lib.cobra_aba_minverse.argtypes = [ctypes.c_ssize_t, ctypes.c_ssize_t, _F64P, _F64P, _F64P, _F64P, _F64P, _F64P]
 _F64 = types.CPointer(types.float64)
 
-#: ``cobra_aba(model, data, q, v, tau, a)`` for numba code: the acceleration (nv,) into ``a``
-#: from ``q`` (nq,), ``v`` (nv,), ``tau`` (nv,) (pass ``array.ctypes``), as ``pin.aba`` in the
-#: WORLD convention (the generated ABA on COBRA's structure, to roundoff); ``model`` and
-#: ``data`` are :attr:`NativeModel.handle` and :attr:`NativeData.handle`. Returns 0. Stateless
-#: for the generated ABA, ``data`` Pinocchio's workspace otherwise: one per thread.
-ABA = types.ExternalFunction("cobra_aba", types.int32(types.intp, types.intp, _F64, _F64, _F64, _F64))
-#: ``cobra_aba_minverse(model, data, q, v, tau, a, minv)``: the acceleration without contact (nv,)
-#: into ``a`` and ``D(q)^-1`` into ``minv`` (nv, nv) C-ordered, its upper triangle, from one
-#: articulated-body pass: ``pin.aba(model, data, q, v, tau, pin.Convention.WORLD)`` then
-#: ``pin.computeMinverse(model, data)``. Returns 0.
+#: ``cobra_aba(model, data, q, v, tau, armature, a)`` for numba code: the acceleration (nv,) into
+#: ``a`` from ``q`` (nq,), ``v`` (nv,), ``tau`` (nv,) of the model with the transmission inertia
+#: ``armature`` (nv,) [kg m^2] (pass ``array.ctypes``), as ``pin.aba`` in the WORLD convention
+#: (the generated ABA on COBRA's structure, to roundoff); ``model`` and ``data`` are
+#: :attr:`NativeModel.handle` and :attr:`NativeData.handle`. Returns 0. Stateless for the
+#: generated ABA, ``data`` Pinocchio's workspace otherwise: one per thread. The armature is an
+#: argument, not the model's alone, because a servo whose gear play is open carries none
+#: (``integrators.kernels.gear_step``).
+ABA = types.ExternalFunction("cobra_aba", types.int32(types.intp, types.intp, _F64, _F64, _F64, _F64, _F64))
+#: ``cobra_aba_minverse(model, data, q, v, tau, armature, a, minv)``: the acceleration without
+#: contact (nv,) into ``a`` and ``D(q)^-1`` into ``minv`` (nv, nv) C-ordered, its upper triangle,
+#: from one articulated-body pass of the model with ``armature``: ``pin.aba(model, data, q, v,
+#: tau, pin.Convention.WORLD)`` then ``pin.computeMinverse(model, data)``. Returns 0.
 ABA_MINVERSE = types.ExternalFunction("cobra_aba_minverse",
-                                      types.int32(types.intp, types.intp, _F64, _F64, _F64, _F64, _F64))
+                                      types.int32(types.intp, types.intp, _F64, _F64, _F64, _F64, _F64, _F64))
 
 
 def _f64(a: np.ndarray) -> np.ndarray:
@@ -93,6 +96,7 @@ class NativeModel:
             :class:`RobotModel` already requires).
 
     Attributes:
+        armature: the model's transmission inertia (nv,) [kg m^2], what :func:`aba` uses unless told.
         generated: whether its ABA is the generated one (``integrators/_aba_cobra.c``: the model
             has the kinematic structure it was generated for, COBRA's), or else Pinocchio's.
 
@@ -103,6 +107,7 @@ class NativeModel:
     def __init__(self, model: RobotModel):
         f = model_fields(model)
         self.nq, self.nv = model.pin_model.nq, model.pin_model.nv
+        self.armature = f.armature.copy()
         self.handle = int(_lib.cobra_model_new(
             len(f.code), f.code.ctypes.data_as(_I32P), f.parent.ctypes.data_as(_I32P),
             f.placement.ctypes.data_as(_F64P), f.inertia.ctypes.data_as(_F64P), f.axis.ctypes.data_as(_F64P),
@@ -118,8 +123,9 @@ class NativeModel:
 
 
 class NativeData:
-    """One Pinocchio workspace (``pinocchio::Data``) of a :class:`NativeModel`: every rollout
-    running at the same time needs its own. Keeps its model alive."""
+    """One workspace of a :class:`NativeModel` (Pinocchio's ``Data`` and a copy of the model that
+    takes each call's armature): every rollout running at the same time needs its own. Keeps its
+    model alive."""
 
     def __init__(self, model: NativeModel):
         self.model = model
@@ -151,23 +157,37 @@ def _state(data: NativeData, q: np.ndarray, v: np.ndarray, tau: np.ndarray | Non
     return arrays
 
 
-def aba(data: NativeData, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> np.ndarray:
-    """The acceleration (nv,) from Python (tests and one-off calls; the loops call :data:`ABA`)."""
+def _armature(data: NativeData, armature: np.ndarray | None) -> np.ndarray:
+    """``armature`` (nv,) as contiguous float64, the model's own when None, or ValueError."""
+    arm = data.model.armature if armature is None else _f64(armature)
+    if arm.shape != (data.model.nv,):
+        raise ValueError(f"armature must be ({data.model.nv},), got {arm.shape}")
+    return arm
+
+
+def aba(data: NativeData, q: np.ndarray, v: np.ndarray, tau: np.ndarray,
+        armature: np.ndarray | None = None) -> np.ndarray:
+    """The acceleration (nv,) from Python (tests and one-off calls; the loops call :data:`ABA`),
+    with the transmission inertia ``armature`` (nv,) [kg m^2] (default: the model's)."""
     q, v, tau = _state(data, q, v, tau)
+    arm = _armature(data, armature)
     a = np.empty(data.model.nv)
-    _lib.cobra_aba(data.model.handle, data.handle, q.ctypes.data_as(_F64P),
-                   v.ctypes.data_as(_F64P), tau.ctypes.data_as(_F64P), a.ctypes.data_as(_F64P))
+    _lib.cobra_aba(data.model.handle, data.handle, q.ctypes.data_as(_F64P), v.ctypes.data_as(_F64P),
+                   tau.ctypes.data_as(_F64P), arm.ctypes.data_as(_F64P), a.ctypes.data_as(_F64P))
     return a
 
 
-def aba_minverse(data: NativeData, q: np.ndarray, v: np.ndarray, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def aba_minverse(data: NativeData, q: np.ndarray, v: np.ndarray, tau: np.ndarray,
+                 armature: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The acceleration (nv,) and ``D(q)^-1`` (nv, nv), upper triangle, from Python (the loops
-    call :data:`ABA_MINVERSE`)."""
+    call :data:`ABA_MINVERSE`), with ``armature`` as :func:`aba` takes it."""
     q, v, tau = _state(data, q, v, tau)
+    arm = _armature(data, armature)
     a = np.empty(data.model.nv)
     minv = np.zeros((data.model.nv, data.model.nv))
     _lib.cobra_aba_minverse(data.model.handle, data.handle, q.ctypes.data_as(_F64P), v.ctypes.data_as(_F64P),
-                            tau.ctypes.data_as(_F64P), a.ctypes.data_as(_F64P), minv.ctypes.data_as(_F64P))
+                            tau.ctypes.data_as(_F64P), arm.ctypes.data_as(_F64P), a.ctypes.data_as(_F64P),
+                            minv.ctypes.data_as(_F64P))
     return a, minv
 
 

@@ -27,7 +27,9 @@ the back-EMF, is re-evaluated every physics step.
 
 Model effects beyond the nominal parameter table enter through parameters of the same set:
 ``joint_coulomb`` [N m], ``torque_limit`` [N m], ``lateral_friction_ratio``, ``backlash`` [rad]
-(a dead zone on the position loop's error),
+(play between each motor and its joint's output, the encoder on the output:
+:func:`integrators.kernels.gear_step`; stepped by :meth:`Simulator.rollout` and the batch, the
+velocity scheme),
 ``encoder_offset`` [rad] (the encoder reads ``q + offset``), ``actuator_delay`` [s] (commands
 reach the servo late) and ``link_mass_error`` [kg] (added to the root module). A set without
 one of them simulates it at its inactive value. Each parameter (unit, bounds, inactive value)
@@ -285,6 +287,20 @@ class SimState:
     step: int = 0
 
 
+def servo_memory(state: SimState, n_base: int, with_current: bool = True) -> np.ndarray:
+    """A rollout's servo memory (:data:`integrators.kernels.N_SERVO`, n_joints) from ``state``:
+    its loops' integral, previous error and duty, its motor current (zero unless
+    ``with_current``), then each gear play open and centred with the motor turning at its joint's
+    rate (``state.v[n_base:]``): a state does not carry the play, so every rollout starts with
+    it centred, as a servo at rest between its flanks is."""
+    memory = np.zeros((K.N_SERVO, len(state.integ)))
+    memory[K.SV_INTEG], memory[K.SV_PREV_ERR], memory[K.SV_DUTY] = state.integ, state.prev_err, state.duty
+    if with_current:
+        memory[K.SV_CURRENT] = state.current
+    memory[K.SV_GEAR + K.GEAR_RATE] = state.v[n_base:]
+    return memory
+
+
 @dataclass(frozen=True)
 class Trajectory:
     """A recorded rollout: samples every ``record_every`` physics steps.
@@ -343,8 +359,9 @@ class Simulator:
             soft contact's time constant, :func:`contact_resolved`; given settings are kept).
 
     Raises:
-        InputError: the soft-constraint law or the implicit friction step with the momentum
-            scheme, or a contact time constant shorter than two steps.
+        InputError: the soft-constraint law, the implicit friction step or a gear play
+            (``backlash`` > 0) with the momentum scheme, or a contact time constant shorter than
+            two steps.
     """
 
     def __init__(self, model: RobotModel, params: ModelParameters | None = None,
@@ -391,6 +408,7 @@ class Simulator:
         for name, slot in K.ACTUATOR_PARAMETERS.items():
             act[:, slot] = per_joint(name)
         act[:, K.A_RKM] = SERVO_GEAR_RATIO * per_joint("motor_km")
+        act[:, K.A_ARMATURE] = per_joint("armature")
         act[:, K.A_COULOMB_EPS] = s.joint_coulomb_eps
         self.act = act
         self.delay_s = effect_value(p, "actuator_delay")
@@ -410,6 +428,11 @@ class Simulator:
         # the kernels' workspace: contact points and forces, body poses and velocities (views of one array)
         self._work = np.empty(K.workspace_size(len(f), len(ch.parents)))
         self._X, self._F, self._kin_R, self._kin_v = K.workspace_views(self._work, len(f), len(ch.parents))
+        #: whether a joint has a gear play (``backlash`` > 0): stepped by :meth:`rollout` alone
+        self.gear_play = bool(np.any(act[:, K.A_BACKLASH] > 0))
+        if self.gear_play and s.scheme != "velocity":
+            raise InputError(f"backlash = {p.value('backlash'):g} rad: the gear play is stepped by the velocity "
+                             f"scheme, got scheme {s.scheme!r}")
         self._momentum = MomentumStep(self.model, s.dt) if s.scheme == "momentum" else None
         self._soft_warm = np.zeros((len(f), 4))  # the soft-constraint solver's last edge forces [N]
         self._native: native.NativeData | None = None  # the compiled loop's ABA workspace, made at its first use
@@ -506,7 +529,14 @@ class Simulator:
 
         The position loop runs when ``state.step`` is a multiple of ``settings.substeps``.
         ``torque_on`` (n_joints,) bool, default all on.
+
+        Raises:
+            InputError: parameters with a gear play (``backlash`` > 0), whose state a
+                :class:`SimState` does not carry: :meth:`rollout` steps it.
         """
+        if self.gear_play:
+            raise InputError(f"backlash = {self.params.value('backlash'):g} rad: a single step does not carry the "
+                             f"gear play's state; use Simulator.rollout")
         integ, prev_err, duty, current = (state.integ.copy(), state.prev_err.copy(),
                                           state.duty.copy(), state.current.copy())
         on = np.ones(self.model.n_joints, dtype=np.bool_) if torque_on is None else np.asarray(torque_on, dtype=np.bool_)
@@ -515,7 +545,7 @@ class Simulator:
                             np.asarray(q_goal, dtype=float), integ, prev_err, duty, on, self.act, self.scal,
                             self.ground, self.model.chain.floating, self._chain_i, self._chain_R, self._chain_f,
                             self._feat_i, self._feat_f, tau, current, self._X, self._F, self._kin_R,
-                            self._kin_v)
+                            self._kin_v, np.zeros((K.N_GEAR, self.model.n_joints)))
         if status:
             self._raise(status, state.t, state.q, state.v)
         if self._momentum is None:
@@ -622,7 +652,7 @@ class Simulator:
         nj, nq, nv = self.model.n_joints, self.model.nq, self.model.nv
         T = state.t + np.arange(n_rec) * record_every * s.dt
         record = np.empty((n_rec, nq + nv + nj))
-        servo = np.array([state.integ, state.prev_err, state.duty, state.current], dtype=float)
+        servo = servo_memory(state, self.model.n_base)
         q, v = state.q.copy(), state.v.copy()
         q_next, v_next, tau, a = np.empty(nq), np.empty(nv), np.empty(nv), np.zeros(nv)
         on = np.ones(nj, dtype=np.bool_) if torque_on is None else np.asarray(torque_on, dtype=np.bool_)

@@ -37,6 +37,7 @@ def test_environments_of_other_rigid_body_models_step_together(cobra):
     params = [nominal, nominal.with_values(armature=0.05), nominal.with_values(mu_c=0.4),
               nominal.with_values(armature=0.05, k2=60.0)]
     params.append(EffectLibrary().transform(nominal, {"link_mass_error": 0.3}))
+    params.append(EffectLibrary().transform(nominal, {"backlash": 0.02}))  # motor inertia off an open play
     batch = BatchSimulator(cobra, params, threads=2)
     table = SidewindingGait(0.65).q_ref(np.arange(501) * 1e-3)
     states = [s.rest_state(heading_rad=0.5 * e) for e, s in enumerate(batch.sims)]
@@ -47,8 +48,9 @@ def test_environments_of_other_rigid_body_models_step_together(cobra):
         assert np.array_equal(Q[e], tr.q[-1]) and np.array_equal(V[e], tr.v[-1]), e
         assert np.array_equal(Q_rec[:, e], tr.q) and np.array_equal(M_rec[:, e], tr.q_meas), e
         assert np.array_equal(C_rec[1:, e], tr.current[1:]), e  # the batch's first record: no step yet, no current
-    # the heavier transmission really is another model: its joints move otherwise
+    # the heavier transmission really is another model: its joints move otherwise; so does a gear play
     assert not np.allclose(V[0, 6:], V[1, 6:], atol=1e-3)
+    assert not np.allclose(Q_rec[:, 0], Q_rec[:, -1], atol=1e-3)
 
 
 def test_a_batch_needs_one_state_per_environment(cobra):

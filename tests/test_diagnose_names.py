@@ -121,20 +121,15 @@ def test_an_effect_named_after_another_is_refitted_as_if_both_had_been_modelled_
 
 
 @pytest.mark.slow
-def test_two_effects_that_neither_explains_alone_are_named_as_a_pair():
+def test_a_gear_play_and_a_ground_anisotropy_hidden_together_are_both_named():
     """A 0.02 rad backlash and twice the lateral ground friction hidden together, on the runs of
-    the confusion matrix's pair of development seed 36 (missed on every seed set before the
-    partnered look): the backlash, which the training runs support most, raises the held-out
-    cost when refitted alone on the whole runs (the fit bends the ground and the motor to mimic
-    the anisotropy it lacks), so it is refitted with each other candidate as a partner
-    (``sysid.discrepancy.diagnose.partnered_look``); with the anisotropy both come out at their
-    values and each carries its own share of the held-out cut."""
+    the confusion matrix's pair of development seed 36. With the backlash a dead zone on the loop's
+    error (before the gear play), its refit alone bent the ground and the motor to mimic the
+    anisotropy and only the partnered look (``sysid.discrepancy.diagnose.partnered_look``) named
+    the two; as gear play the anisotropy is named in the first round and the backlash in the
+    second, each at its value (measured 2.010 and 0.01997 rad)."""
     d = diagnosed("backlash", "anisotropic_ground_friction", seed=36)
-    bar = DiagnoseConfig().min_improvement
     assert sorted(e.name for e in d.effects) == ["anisotropic_ground_friction", "backlash"]
-    looked = {c.name: c for c in d.rounds[0] if c.whole_runs}
-    assert set(looked) == {"backlash", "anisotropic_ground_friction"}   # the pair's evidence, on the whole runs
-    assert all(c.effect_share >= bar for c in looked.values())
     for e in d.effects:  # each 95 % interval holds the value hidden, and the value is within 2 %
         assert e.ci95[0] <= MAGNITUDES[e.name] <= e.ci95[1]
         assert e.value == pytest.approx(MAGNITUDES[e.name], rel=0.02)

@@ -52,14 +52,19 @@ def _effect_signature(nominal_gait_run, name: str, value: float):
     return changed, localise([(changed, nominal_gait_run)])
 
 
-def test_friction_and_backlash_make_the_joints_lag_against_their_motion(nominal_gait_run):
-    """Joint friction resists the motion and a dead band lets the joint stop short of each
-    reversal: either way the reading falls behind the command, so the residual has the opposite
-    sign of the commanded velocity (r_sign_signed < 0) and the amplitude falls short."""
-    for name, value in (("joint_coulomb_friction", 0.5), ("backlash", 0.03)):
-        _, sig = _effect_signature(nominal_gait_run, name, value)
-        assert sig.r_sign_signed < -0.4, (name, sig.r_sign_signed)   # 0.64 and 0.51 when written
-        assert sig.amplitude_ratio < 0.995, (name, sig.amplitude_ratio)
+def test_friction_makes_the_joints_lag_against_their_motion_and_a_gear_play_does_not(nominal_gait_run):
+    """Joint friction resists the motion: the reading falls behind the command, so the residual
+    has the opposite sign of the commanded velocity (r_sign_signed < 0) and the amplitude falls
+    short. A 0.03 rad gear play moves the readings too (mrad), but the loop acts on the output's
+    reading and takes the play up: the amplitude is kept and the residual hardly follows the
+    motion's sign."""
+    _, sig = _effect_signature(nominal_gait_run, "joint_coulomb_friction", 0.5)
+    assert sig.r_sign_signed < -0.4                             # -0.64 when written
+    assert sig.amplitude_ratio < 0.995                          # 0.992
+    _, sig = _effect_signature(nominal_gait_run, "backlash", 0.03)
+    assert sig.joint_rmse_rad > 0.003                           # 0.009
+    assert abs(sig.amplitude_ratio - 1.0) < 0.005               # 1.002
+    assert abs(sig.r_sign) < 0.3                                # 0.17
 
 
 def test_a_command_delay_shifts_the_joints_in_time(nominal_gait_run):

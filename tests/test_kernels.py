@@ -28,7 +28,7 @@ def _forces(sim, q, v):
     status = K.generalized_forces(q, v, duty, off, sim.act, sim.scal, sim.ground, sim.model.chain.floating,
                                   sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i, sim._feat_f, tau,
                                   np.empty(sim.model.n_joints), X, F, np.empty_like(sim._kin_R),
-                                  np.empty_like(sim._kin_v))
+                                  np.empty_like(sim._kin_v), np.zeros((K.N_GEAR, sim.model.n_joints)))
     return status, tau, X, F
 
 

@@ -205,8 +205,7 @@ def test_gear_backlash_is_play_between_the_motor_and_the_encoders_output(cobra, 
     The loop acts on the output's reading, so it takes the play up: the readings follow their
     commands about as closely as without play (measured RMS 0.0952 -> 0.0954 rad at b = 0.02;
     bound: within b / 10), while the link's free travel moves the head (8 cm after 6 s). Our
-    library's backlash, a dead zone on the loop's error, lets the reading lag instead (0.099 ->
-    0.114 rad on our simulator's same run): another structure for the same play."""
+    simulator's gear play is the same structure (``tests/test_gear_play.py`` compares the two)."""
     b = 0.02
     options = dataclasses.replace(twin_options(PARAMS), backlash=b)
     mj_model = mujoco_twin.build(cobra.urdf_path, options, PARAMS)

@@ -256,7 +256,7 @@ def test_with_the_proxy_set_aside_and_nothing_else_significant_the_second_look_g
 
 def test_a_candidate_closer_to_none_than_the_hardware_resolves_is_not_named_nor_a_proxy():
     """A near-limit joint friction on MuJoCo's runs: a backlash of 0.9 mrad (under one encoder
-    count) cuts the held-out cost most, as a sub-count dead zone mimics friction behind the servo
+    count) cuts the held-out cost most, as a sub-count play mimics friction behind the servo
     loop. It is neither checked nor named nor reported as a structural difference; the friction
     is named."""
     backlash = LIBRARY["backlash"]

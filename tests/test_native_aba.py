@@ -125,6 +125,38 @@ def test_the_generated_aba_serves_cobras_structure_only(cobra, tmp_path):
                           pin.aba(pm, pm.createData(), q, v, tau, pin.Convention.WORLD))
 
 
+def test_the_armature_is_each_calls_own(cobra, erd_dir, tmp_path):
+    """A servo whose gear play is open carries no motor inertia (``integrators.kernels.gear_step``),
+    so the armature is an argument of every call: with another armature than the model's, the
+    native dynamics are those of the model with that armature (Pinocchio's pass bit for bit,
+    the generated ABA to roundoff), and a workspace used with one armature and then another
+    keeps nothing of the first."""
+    rng = np.random.default_rng(11)
+    for name, model in _robots(cobra, erd_dir, tmp_path).items():
+        pm = model.pin_model
+        other = model.with_armature(rng.uniform(0.0, 0.05, model.n_joints))
+        data = native.NativeData(native.native_model(model))
+        q = pin.randomConfiguration(pm, -np.ones(pm.nq), np.ones(pm.nq))
+        v, tau = rng.normal(size=pm.nv), 10.0 * rng.normal(size=pm.nv)
+        reference = other.pin_model.createData()
+        a_pin = pin.aba(other.pin_model, reference, q, v, tau, pin.Convention.WORLD)
+        assert not np.allclose(a_pin, pin.aba(pm, pm.createData(), q, v, tau, pin.Convention.WORLD)), name
+        for _ in range(2):  # the model's armature, then the other's, twice over
+            own = native.aba(data, q, v, tau)
+            a = native.aba(data, q, v, tau, other.pin_model.armature)
+            a_world, minv = native.aba_minverse(data, q, v, tau, other.pin_model.armature)
+            assert np.array_equal(own, native.aba(native.NativeData(native.native_model(model)), q, v, tau)), name
+            if native.native_model(model).generated:
+                assert np.allclose(a, a_pin, rtol=0, atol=ROUNDOFF * np.abs(a_pin).max()), name
+            else:
+                assert np.array_equal(a, a_pin), name
+            assert np.array_equal(a_world, a_pin), name
+            assert np.array_equal(np.triu(minv), np.triu(pin.computeMinverse(other.pin_model, reference))), name
+    with pytest.raises(ValueError, match=r"armature must be \(17,\)"):
+        native.aba(native.NativeData(native.native_model(cobra)), cobra.configuration(), np.zeros(17), np.zeros(17),
+                   np.zeros(11))
+
+
 def test_the_native_model_is_built_once_per_model(cobra):
     assert native.native_model(cobra) is native.native_model(cobra)
     assert native.native_model(cobra.with_armature(np.full(11, 0.01))) is not native.native_model(cobra)

@@ -114,7 +114,8 @@ def test_the_solvers_scratch_carries_nothing_from_one_step_to_the_next(cobra):
     n = cobra.n_joints
     K.pre_step(True, q, v, np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n, dtype=np.bool_),
                sim.act, sim.scal, sim.ground, True, sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i,
-               sim._feat_f, np.empty(cobra.nv), np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v)
+               sim._feat_f, np.empty(cobra.nv), np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v,
+               np.zeros((K.N_GEAR, n)))
     args = (cobra.nv, True, sim._chain_i[:, 0], sim._chain_i[:, 2], sim._feat_i[:, 0], sim._X, sim._kin_R,
             sim._kin_v, v, 0.3, 0.6)
     for elliptic in (False, True):
@@ -197,7 +198,8 @@ def test_on_all_its_ends_cobras_pyramid_is_solved_through_the_velocities(cobra):
     tau, n = np.empty(cobra.nv), cobra.n_joints
     K.pre_step(True, q, v, np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n, dtype=np.bool_),
                sim.act, sim.scal, sim.ground, True, sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i,
-               sim._feat_f, tau, np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v)
+               sim._feat_f, tau, np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v,
+               np.zeros((K.N_GEAR, n)))
     pm, data = cobra.pin_model, cobra.pin_model.createData()
     a0 = pin.aba(pm, data, q, v, tau, pin.Convention.WORLD).copy()
     Minv = pin.computeMinverse(pm, data)
@@ -238,7 +240,8 @@ def test_edge_rows_are_pinocchios_contact_jacobian(cobra):
     n = cobra.n_joints
     K.pre_step(True, q, v, np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n, dtype=np.bool_),
                sim.act, sim.scal, sim.ground, True, sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i,
-               sim._feat_f, tau, np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v)
+               sim._feat_f, tau, np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v,
+               np.zeros((K.N_GEAR, n)))
     mu1, mu2 = 0.3, 0.6
     rows, depth, drift = K.soft_contact_rows(cobra.nv, True, sim._chain_i[:, 0], sim._chain_i[:, 2],
                                              sim._feat_i[:, 0], sim._X, sim._kin_R, sim._kin_v, v, mu1, mu2)
@@ -446,7 +449,8 @@ def test_at_mujocos_states_the_contact_accelerations_are_mujocos(cobra, cone, la
         tau = np.empty(cobra.nv)
         K.pre_step(True, q, v, data.ctrl.copy(), np.zeros(n), np.zeros(n), np.zeros(n), np.ones(n, dtype=np.bool_),
                    sim.act, sim.scal, sim.ground, True, sim._chain_i, sim._chain_R, sim._chain_f, sim._feat_i,
-                   sim._feat_f, tau, np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v)
+                   sim._feat_f, tau, np.zeros(n), sim._X, sim._F, sim._kin_R, sim._kin_v,
+                   np.zeros((K.N_GEAR, n)))
         assert np.count_nonzero(sim._X[:, 2] < 0) == data.ncon
         tau[:] = 0.0
         tau[6:] = data.qfrc_actuator[6:] + data.qfrc_passive[6:]

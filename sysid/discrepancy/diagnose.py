@@ -124,8 +124,8 @@ class DiagnoseConfig:
         use_current: fit the motor currents as a third channel in every fit and judgement
             (``Weights.use_current``); None: when every training and held-out run has them.
             A servo's current is the torque its motor applies: it tells joint friction (the
-            motor pushes harder whenever the joint moves) from backlash (it pushes less while
-            the error is inside the dead zone), which lag the encoders alike.
+            motor pushes harder whenever the joint moves) from backlash (it pushes nothing on
+            the output while it crosses the play), which move the encoders alike.
     """
 
     max_effects: int = 2

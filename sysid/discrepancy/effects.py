@@ -16,7 +16,7 @@ lacks it; adding the parameter to a :class:`ModelParameters` switches the effect
 | effect | parameter | enters | plausible on COBRA |
 | --- | --- | --- | --- |
 | ``joint_coulomb_friction`` | ``joint_coulomb`` [N m] | ``-tau_c tanh(qdot / eps)`` at every joint | 0-1.5 |
-| ``backlash`` | ``backlash`` [rad] | dead zone of that half-width on the servo loop's error | 0-0.05 |
+| ``backlash`` | ``backlash`` [rad] | play of that half-width between the motor and the output the encoder reads | 0-0.05 |
 | ``actuator_delay`` | ``actuator_delay`` [s] | commands reach the servos late (fractional ticks interpolated) | 0-0.1 |
 | ``torque_saturation`` | ``torque_limit`` [N m] | motor torque clipped (voltage/current limit) | 1-9.9 |
 | ``anisotropic_ground_friction`` | ``lateral_friction_ratio`` [1] | sideways friction = ratio x along-body friction | 0.5-3 |
@@ -33,8 +33,9 @@ on a bound, or whose 95 % interval reaches outside it on a side away from the in
 is no physical value of the effect: the workflow reports it as a proxy for a structural
 difference instead of naming it (``sysid.discrepancy.diagnose.choose``, and
 ``sysid.discrepancy.diagnose.name_one`` for the interval). A backlash
-narrower than one encoder count (0.0015 rad) is not named either: every Dynamixel's loop, acting
-on whole counts, has such a dead zone (``Effect.resolution``).
+narrower than one encoder count (0.0015 rad) is not named either: the output's travel in such a
+play is below what its encoder resolves, and every Dynamixel's loop, acting on whole counts, lets
+its output wander by up to a count already (``Effect.resolution``).
 """
 from __future__ import annotations
 
@@ -176,14 +177,17 @@ EFFECTS: tuple[Effect, ...] = (
            plausible=(0.0, 1.5), realistic=0.3),  # up to ~15 % of the XH540's 9.9 N m stall torque lost in its gearbox
     Effect("backlash",
            effect_parameter("backlash"),
-           0.005, "the servo loop does not act on the first +-b of its position error",
-           "joint residuals correlated with sign(qdot), a lag of about b after each reversal",
-           (("r_sign", 1.0), ("reversal_ratio", 1.0)),
+           0.005, "the motor and the joint's output are two bodies with +-b of play between the teeth: "
+                  "while it is open the output is free of the motor's torque and inertia, the motor "
+                  "crosses it alone and the teeth meet in a plastic impact (integrators.kernels.gear_step)",
+           "joint residuals of a few mrad while motors cross their play, the amplitude kept and no lag "
+           "against the motion (the loop acts on the output's reading and takes the play up)",
+           (("amplitude_ratio", 1.0), ("r_sign", -1.0)),
            plausible=(0.0, 0.05), realistic=0.02,  # ~3 deg: gear play (~0.25 deg) plus printed horn/coupling play
-           # a Dynamixel's loop acts on its error in whole encoder counts: every servo has a dead
-           # zone of up to a count, which our loop (on the continuous error) lacks, and Coulomb
-           # friction behind the loop stalls it within tau_c / Kp of the goal too; a dead zone
-           # narrower than a count is one of these, not play in the gears
+           # a Dynamixel's loop acts on its error in whole encoder counts: every servo lets its
+           # output wander by up to a count, which our loop (on the continuous error) does not,
+           # and Coulomb friction behind the loop stalls it within tau_c / Kp of the goal too; a
+           # play narrower than a count is one of these, and its encoder does not resolve it
            resolution=RAD_PER_PULSE),
     Effect("actuator_delay",
            effect_parameter("actuator_delay"),

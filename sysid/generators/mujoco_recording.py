@@ -67,8 +67,8 @@ def twin_options(params: ModelParameters) -> TwinOptions:
 #: ``forcerange`` [N m], commands delayed in a buffer [s], encoders offset [rad], the ratio of
 #: sideways to along-body ground friction of the body-aligned contact pairs, a payload on the
 #: head body [kg], play in the gear train between the motor and the encoder's output [rad]
-#: (a second hinge per joint: ``TwinOptions.backlash``; our model's is a dead zone on the servo
-#: loop's error, another structure for the same play).
+#: (a second hinge per joint: ``TwinOptions.backlash``; ours steps the same structure its own way,
+#: two bodies meeting in plastic impacts: ``integrators.kernels.gear_step``).
 EFFECT_OPTIONS = {"joint_coulomb_friction": "frictionloss", "torque_saturation": "forcerange",
                   "actuator_delay": "command_delay", "encoder_offset": "encoder_offset",
                   "anisotropic_ground_friction": "lateral_friction_ratio", "link_mass_error": "payload",
