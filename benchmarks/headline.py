@@ -510,6 +510,11 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # output): its matrices and signal table hide it too (seven effects, 21 pairs: the pairs'
     # seeds, cycled, moved)
     ("2026-12-07T11:31", "b36600d", "gear backlash hidden on MuJoCo's side too", MATRIX_FILES + ("effect_signal",)),
+    # our backlash is gear play (two bodies, plastic impacts; integrators.kernels.gear_step), not a
+    # dead zone on the loop's error: every diagnosis screens it, our simulator's backlash cases
+    # are other data, and every compiled step passes its armature to the ABA (runs without
+    # backlash the same bit for bit)
+    ("2026-12-07T14:58", "beeabd0", "backlash as gear play", DIAGNOSIS_FILES + ("effect_signal", "sim_speed")),
 )
 
 
