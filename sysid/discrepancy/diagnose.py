@@ -1178,9 +1178,11 @@ def partnered_look(looked: Candidate, candidates: Sequence[Candidate], baseline:
         refit, and whether both are named.
 
     Physical reason: two effects missing together can each bend the other's refit so far that
-    neither alone predicts a run no fit has seen. On this simulator's runs with a 0.02 rad
+    neither alone predicts a run no fit has seen. Found on this simulator's runs with a 0.02 rad
     backlash and twice the lateral ground friction hidden together (the confusion matrix's pair,
-    development seed 36; missed on every seed set), the backlash cut the training cost most
+    development seed 36; missed on every seed set), while the library's backlash was a dead zone
+    on the loop's error (before beeabd0; as gear play the two are named one per round without
+    this look, ``tests/test_diagnose_names.py``): the backlash cut the training cost most
     (dBIC -369, 0.0156 rad on the whole runs) but raised the held-out cost by 5 %: the fit bent
     the ground's friction and the motor to mimic the anisotropy it lacked; the anisotropy's own
     screening stopped at 1.23, its lag of the head path partly taken by the backlash's lag of
