@@ -360,8 +360,8 @@ class Simulator:
 
     Raises:
         InputError: the soft-constraint law, the implicit friction step or a gear play
-            (``backlash`` > 0) with the momentum scheme, or a contact time constant shorter than
-            two steps.
+            (``backlash`` > 0) with the momentum scheme, a gear play without the motors'
+            inertia, or a contact time constant shorter than two steps.
     """
 
     def __init__(self, model: RobotModel, params: ModelParameters | None = None,
@@ -433,6 +433,9 @@ class Simulator:
         if self.gear_play and s.scheme != "velocity":
             raise InputError(f"backlash = {p.value('backlash'):g} rad: the gear play is stepped by the velocity "
                              f"scheme, got scheme {s.scheme!r}")
+        if self.gear_play and not np.all(act[:, K.A_ARMATURE] > 0):
+            raise InputError(f"backlash = {p.value('backlash'):g} rad needs the motors' inertia (armature > 0 "
+                             f"kg m^2) to cross the play, got {act[:, K.A_ARMATURE].min():g}")
         self._momentum = MomentumStep(self.model, s.dt) if s.scheme == "momentum" else None
         self._soft_warm = np.zeros((len(f), 4))  # the soft-constraint solver's last edge forces [N]
         self._native: native.NativeData | None = None  # the compiled loop's ABA workspace, made at its first use

@@ -174,6 +174,9 @@ def test_what_cannot_step_a_gear_play_refuses_it(cobra):
     params = PARAMS.with_values(backlash=0.01)
     with pytest.raises(InputError, match="backlash = 0.01 rad.*velocity scheme"):
         Simulator(cobra, params, SimSettings(scheme="momentum"))
+    no_motor = PARAMS.with_parameters([dataclasses.replace(PARAMS["armature"], value=0.0, min=0.0, log_scale=False)])
+    with pytest.raises(InputError, match=r"backlash = 0.01 rad needs the motors' inertia \(armature > 0"):
+        Simulator(cobra, no_motor.with_values(backlash=0.01))
     sim = Simulator(cobra, params)
     with pytest.raises(InputError, match="backlash = 0.01 rad.*Simulator.rollout"):
         sim.step(sim.rest_state(), np.zeros(11))
