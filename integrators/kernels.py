@@ -477,8 +477,9 @@ def gear_step(v, a, act, dt, gear, armature):
 
     - Flank in contact (``gear[GEAR_ENGAGED]`` = s = +-1): motor and output move as one, the
       motor's inertia on the joint's diagonal (``armature``, what the next ABA takes) and its
-      torque ``T`` on the joint (:func:`actuator_torques`). The teeth pass ``f = T - I a_j``; when
-      it would pull (``s f < 0``) the play opens: the motor keeps the joint's rate.
+      torque ``T`` on the joint (:func:`actuator_torques`); the motor's rate is the joint's, so
+      ``gear[GEAR_RATE]`` is read only while the play is open. The teeth pass ``f = T - I a_j``;
+      when it would pull (``s f < 0``) the play opens: the motor keeps the joint's rate.
     - Play open: the output carries no motor inertia and no torque; the motor turns alone,
       ``I dw/dt = T`` (semi-implicit Euler), and the gap ``motor - output`` moves by
       ``dt (w - v_j)``. When it reaches +-b the teeth meet in a plastic impact: the motor's
@@ -501,8 +502,8 @@ def gear_step(v, a, act, dt, gear, armature):
         if s != 0.0:
             if s * (gear[GEAR_TORQUE, j] - inertia * a[nbase + j]) < 0.0:
                 gear[GEAR_ENGAGED, j] = 0.0
+                gear[GEAR_RATE, j] = vj
                 armature[nbase + j] = 0.0
-            gear[GEAR_RATE, j] = vj
             continue
         w = gear[GEAR_RATE, j] + dt * gear[GEAR_TORQUE, j] / inertia
         gap = gear[GEAR_GAP, j] + dt * (w - vj)
