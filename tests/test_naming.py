@@ -254,6 +254,47 @@ def test_with_the_proxy_set_aside_and_nothing_else_significant_the_second_look_g
     assert [p.name for p in proxies] == [aniso]
 
 
+def _look_names_nothing(cands, baseline):
+    """Stands in for the second look (:func:`sysid.discrepancy.diagnose.second_look`): the first
+    candidate refitted on the whole runs, its evidence replaced, not named."""
+    return replace(cands[0], held_out_improvement=-0.05), None, False
+
+
+@pytest.mark.parametrize("pair_named", [True, False])
+def test_when_the_second_look_names_nothing_the_partnered_look_names_the_pair_both_or_neither(pair_named):
+    """Two effects missing together that bend each other's refit (``partnered_look``'s physical
+    reason): no candidate passes on its screening, the second look names nothing, and the look
+    for a partner decides. A pair it names is the round's answer with the pair's refit; a pair it
+    does not name leaves nothing named, but the ranked candidates carry the evidence of the
+    whole runs' refits (the report shows what was tried)."""
+    backlash, aniso = "backlash", "anisotropic_ground_friction"
+    cands = [candidate(backlash, 9_500.0, [98.0, 98.0, 98.0]), candidate(aniso, 9_800.0, [99.0, 99.0, 99.0])]
+    pair_fit = refit_at(aniso, 2.0, (1.9, 2.1))
+    asked: list[tuple[str, list[str]]] = []
+
+    def partner(looked, candidates, baseline):
+        asked.append((looked.name, [c.name for c in candidates]))
+        pair = [replace(looked, value=0.02, held_out_improvement=0.9),
+                replace(next(c for c in candidates if c.name == aniso), value=2.0, held_out_improvement=0.9)]
+        return pair, pair_fit, pair_named
+
+    found, final, ranked, proxies = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY, RefitWithout({}),
+                                             _look_names_nothing, Refits(), partner)
+    assert asked == [(backlash, [backlash, aniso])] and proxies == []
+    if pair_named:
+        assert [(c.name, c.value) for c in found] == [(backlash, 0.02), (aniso, 2.0)] and final is pair_fit
+    else:
+        assert found == [] and final is None
+    assert {c.name: c.held_out_improvement for c in ranked} == {backlash: 0.9, aniso: 0.9}
+
+
+def test_without_a_partner_look_the_second_looks_candidate_keeps_its_whole_runs_evidence():
+    cands = [candidate("backlash", 9_500.0, [98.0, 98.0, 98.0])]
+    found, final, ranked, _ = name_one(cands, BASELINE, N, DiagnoseConfig(), LIBRARY, RefitWithout({}),
+                                       _look_names_nothing, Refits())
+    assert found == [] and final is None and ranked[0].held_out_improvement == -0.05
+
+
 def test_a_candidate_closer_to_none_than_the_hardware_resolves_is_not_named_nor_a_proxy():
     """A near-limit joint friction on MuJoCo's runs: a backlash of 0.9 mrad (under one encoder
     count) cuts the held-out cost most, as a sub-count play mimics friction behind the servo
