@@ -438,6 +438,7 @@ class Simulator:
                              f"kg m^2) to cross the play, got {act[:, K.A_ARMATURE].min():g}")
         self._momentum = MomentumStep(self.model, s.dt) if s.scheme == "momentum" else None
         self._soft_warm = np.zeros((len(f), 4))  # the soft-constraint solver's last edge forces [N]
+        self._no_gear = np.zeros((K.N_GEAR, self.model.n_joints))  # step's gear rows: it refuses a gear play
         self._native: native.NativeData | None = None  # the compiled loop's ABA workspace, made at its first use
 
     def __getstate__(self) -> dict:
@@ -548,7 +549,7 @@ class Simulator:
                             np.asarray(q_goal, dtype=float), integ, prev_err, duty, on, self.act, self.scal,
                             self.ground, self.model.chain.floating, self._chain_i, self._chain_R, self._chain_f,
                             self._feat_i, self._feat_f, tau, current, self._X, self._F, self._kin_R,
-                            self._kin_v, np.zeros((K.N_GEAR, self.model.n_joints)))
+                            self._kin_v, self._no_gear)
         if status:
             self._raise(status, state.t, state.q, state.v)
         if self._momentum is None:
