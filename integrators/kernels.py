@@ -703,8 +703,8 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
     armature = np.empty(v.shape[0])
     gear_armature(act, servo[SV_GEAR:], v.shape[0], armature)
     return _step(i, plan, q, v, a, goals, servo[SV_INTEG], servo[SV_PREV_ERR], servo[SV_DUTY], servo[SV_CURRENT],
-                 servo[SV_GEAR:], has_gear_play(act), armature, torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f,
-                 tau, X, F, kin_R, kin_v, record)
+                 servo[SV_GEAR:], has_gear_play(act), armature, torque_on, act, scal, ground, chain_i, chain_R,
+                 chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
 
 
 @njit(cache=True)
