@@ -519,15 +519,6 @@ def gear_step(v, a, act, dt, gear, armature):
 
 
 @njit(cache=True, inline="always")
-def has_gear_play(act):
-    """Whether any joint has a gear play (``act[:, A_BACKLASH]`` > 0)."""
-    for j in range(act.shape[0]):
-        if act[j, A_BACKLASH] > 0.0:
-            return True
-    return False
-
-
-@njit(cache=True, inline="always")
 def gear_armature(act, gear, nv, armature):
     """The armature (nv,) [kg m^2] the ABA takes in the gear state ``gear``: each joint's motor
     inertia ``act[:, A_ARMATURE]``, but none where the joint's gear play is open; zero on the
@@ -703,16 +694,15 @@ def rollout_step(i, plan, q, v, a, goals, servo, torque_on, act, scal, ground, c
     armature = np.empty(v.shape[0])
     gear_armature(act, servo[SV_GEAR:], v.shape[0], armature)
     return _step(i, plan, q, v, a, goals, servo[SV_INTEG], servo[SV_PREV_ERR], servo[SV_DUTY], servo[SV_CURRENT],
-                 servo[SV_GEAR:], has_gear_play(act), armature, torque_on, act, scal, ground, chain_i, chain_R,
-                 chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
+                 servo[SV_GEAR:], armature, torque_on, act, scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f,
+                 tau, X, F, kin_R, kin_v, record)
 
 
 @njit(cache=True)
-def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, gear, play, armature, torque_on, act, scal,
-          ground, chain_i, chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record):
+def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, gear, armature, torque_on, act, scal, ground,
+          chain_i, chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record):
     """:func:`rollout_step` on the views of the workspace and of ``servo``'s rows (a loop makes
-    them once, not at every step: each view costs an atomic reference count); ``play``: whether
-    any joint has a gear play (:func:`has_gear_play`; without one the step skips :func:`gear_step`).
+    them once, not at every step: each view costs an atomic reference count).
 
     Compiled once and called by every contact law's loop (:data:`LAW_LOOPS`), not inlined into
     each: the step's inlined helpers are most of a loop's compile time (about 13 s on a 2-core
@@ -721,8 +711,7 @@ def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, gear, play, a
     floating = plan[P_FLOATING] != 0
     if i > 0 and plan[P_INTEGRATE]:
         integrate(q, v, a, scal[S_DT], floating, q, v)
-        if play:
-            gear_step(v, a, act, scal[S_DT], gear, armature)
+        gear_step(v, a, act, scal[S_DT], gear, armature)
         status = check_state(v, scal[S_MAX_SPEED])
         if status:
             return -status
@@ -770,7 +759,6 @@ def _rollout_loop(law, args):
     # the armature the ABA takes: the motors' inertia, none on a joint whose gear play is open
     armature = np.empty(v.shape[0])
     gear_armature(act, gear, v.shape[0], armature)
-    play = has_gear_play(act)
     parents, vidx, f_body = chain_i[:, 0], chain_i[:, 2], feat_i[:, 0]  # the soft laws' columns
     # the arrays' addresses for Pinocchio, taken once (the loop updates the arrays in place)
     qp, vp, taup, ap, minvp, armp = q.ctypes, v.ctypes, tau.ctypes, a.ctypes, minv.ctypes, armature.ctypes
@@ -781,8 +769,8 @@ def _rollout_loop(law, args):
     elliptic = law == LAW_SOFT_ELLIPTIC
     cone_scratch = elliptic_scratch(feat_i.shape[0] if elliptic else 0, v.shape[0] if elliptic else 0)
     for i in range(start, stop):
-        status = _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, gear, play, armature, torque_on, act,
-                       scal, ground, chain_i, chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
+        status = _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, gear, armature, torque_on, act, scal,
+                       ground, chain_i, chain_R, chain_f, feat_i, feat_f, tau, X, F, kin_R, kin_v, record)
         if status != STATUS_OK or i == plan[P_STEPS]:
             return status, i
         if law == LAW_COMPLIANT:
