@@ -59,6 +59,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/contact_time_constant.py
 	$(PY) benchmarks/contact_law.py
 	$(PY) benchmarks/contact_step.py
+	$(PY) benchmarks/gear_play_step.py
 	$(PY) benchmarks/mujoco_fit.py --configs twin,elliptic_soft --laws soft_constraint,soft_elliptic --channel-weights residual --name mujoco_fit_residual
 	$(PY) benchmarks/mujoco_fit.py --configs stiff --laws soft_constraint,soft_elliptic --channel-weights residual --name mujoco_fit_residual_stiff
 	$(PY) benchmarks/headline.py  # the README's headline table from benchmarks/results/
