@@ -28,8 +28,8 @@ the back-EMF, is re-evaluated every physics step.
 Model effects beyond the nominal parameter table enter through parameters of the same set:
 ``joint_coulomb`` [N m], ``torque_limit`` [N m], ``lateral_friction_ratio``, ``backlash`` [rad]
 (play between each motor and its joint's output, the encoder on the output:
-:func:`integrators.kernels.gear_step`; stepped by :meth:`Simulator.rollout` and the batch, the
-velocity scheme),
+:func:`integrators.kernels.gear_step`; stepped by :meth:`Simulator.rollout`, :meth:`Simulator.step`
+(its state in :attr:`SimState.gear`) and the batch, in the velocity scheme),
 ``encoder_offset`` [rad] (the encoder reads ``q + offset``), ``actuator_delay`` [s] (commands
 reach the servo late) and ``link_mass_error`` [kg] (added to the root module). A set without
 one of them simulates it at its inactive value. Each parameter (unit, bounds, inactive value)
@@ -275,7 +275,10 @@ def contact_resolved(settings: SimSettings, params: ModelParameters) -> SimSetti
 @dataclass(frozen=True)
 class SimState:
     """Everything that evolves: time [s], q (nq,), v (nv,), the servo loop's memory (pulses),
-    the held PWM duty and the last motor current [A]; ``step`` counts physics steps."""
+    the held PWM duty and the last motor current [A]; ``step`` counts physics steps. ``gear``
+    (:data:`integrators.kernels.N_GEAR`, n_joints): the gear play's state
+    (:func:`integrators.kernels.gear_step`), which :meth:`Simulator.step` carries for parameters
+    with a play; None: every play open and centred, its motor turning at its joint's rate."""
 
     t: float
     q: np.ndarray
@@ -285,19 +288,23 @@ class SimState:
     duty: np.ndarray
     current: np.ndarray
     step: int = 0
+    gear: np.ndarray | None = None
 
 
 def servo_memory(state: SimState, n_base: int, with_current: bool = True) -> np.ndarray:
     """A rollout's servo memory (:data:`integrators.kernels.N_SERVO`, n_joints) from ``state``:
     its loops' integral, previous error and duty, its motor current (zero unless
-    ``with_current``), then each gear play open and centred with the motor turning at its joint's
-    rate (``state.v[n_base:]``): a state does not carry the play, so every rollout starts with
-    it centred, as a servo at rest between its flanks is."""
+    ``with_current``), then the gear play's state: ``state.gear``, or, when the state carries
+    none, each play open and centred with the motor turning at its joint's rate
+    (``state.v[n_base:]``), as a servo at rest between its flanks is."""
     memory = np.zeros((K.N_SERVO, len(state.integ)))
     memory[K.SV_INTEG], memory[K.SV_PREV_ERR], memory[K.SV_DUTY] = state.integ, state.prev_err, state.duty
     if with_current:
         memory[K.SV_CURRENT] = state.current
-    memory[K.SV_GEAR + K.GEAR_RATE] = state.v[n_base:]
+    if state.gear is None:
+        memory[K.SV_GEAR + K.GEAR_RATE] = state.v[n_base:]
+    else:
+        memory[K.SV_GEAR:] = state.gear
     return memory
 
 
@@ -532,34 +539,38 @@ class Simulator:
         """Advance one physics step with servo goal angles ``q_goal`` (n_joints,) [rad].
 
         The position loop runs when ``state.step`` is a multiple of ``settings.substeps``.
-        ``torque_on`` (n_joints,) bool, default all on.
-
-        Raises:
-            InputError: parameters with a gear play (``backlash`` > 0), whose state a
-                :class:`SimState` does not carry: :meth:`rollout` steps it.
+        ``torque_on`` (n_joints,) bool, default all on. With a gear play the step carries its
+        state in :attr:`SimState.gear` (from an open, centred play when the state has none) and
+        takes the motors' inertia off the joints whose play is open, as :meth:`rollout` does:
+        the same states step for step.
         """
-        if self.gear_play:
-            raise InputError(f"backlash = {self.params.value('backlash'):g} rad: a single step does not carry the "
-                             f"gear play's state; use Simulator.rollout")
         integ, prev_err, duty, current = (state.integ.copy(), state.prev_err.copy(),
                                           state.duty.copy(), state.current.copy())
         on = np.ones(self.model.n_joints, dtype=np.bool_) if torque_on is None else np.asarray(torque_on, dtype=np.bool_)
         q, v, tau = np.empty(self.model.nq), np.empty(self.model.nv), np.empty(self.model.nv)
+        gear, armature = self._no_gear, None
+        if self.gear_play:
+            gear = servo_memory(state, self.model.n_base)[K.SV_GEAR:]
+            armature = np.empty(self.model.nv)
+            K.gear_armature(self.act, gear, self.model.nv, armature)
         status = K.pre_step(state.step % self.settings.substeps == 0, state.q, state.v,
                             np.asarray(q_goal, dtype=float), integ, prev_err, duty, on, self.act, self.scal,
                             self.ground, self.model.chain.floating, self._chain_i, self._chain_R, self._chain_f,
                             self._feat_i, self._feat_f, tau, current, self._X, self._F, self._kin_R,
-                            self._kin_v, self._no_gear)
+                            self._kin_v, gear)
         if status:
             self._raise(status, state.t, state.q, state.v)
         if self._momentum is None:
-            status = K.post_step(state.q, state.v, self._acceleration(self._pin, self._data, state.q, state.v, tau),
-                                 self.scal, self.model.chain.floating, q, v)
+            a = self._acceleration(self._pin, self._data, state.q, state.v, tau, armature)
+            status = K.post_step(state.q, state.v, a, self.scal, self.model.chain.floating, q, v)
         else:
             status = self._momentum_step(state.q, state.v, tau, q, v)
         if status:
             self._raise(status, state.t, state.q, v)
-        return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1)
+        if not self.gear_play:
+            return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1)
+        K.gear_step(v, a, self.act, self.settings.dt, gear, armature)
+        return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1, gear)
 
     def _native_data(self) -> native.NativeData:
         """The compiled loop's ABA workspace (:mod:`integrators.native`), made at its first use."""
@@ -568,15 +579,19 @@ class Simulator:
         return self._native
 
     def _acceleration(self, model: pin.Model, data: pin.Data, q: np.ndarray, v: np.ndarray,
-                      tau: np.ndarray) -> np.ndarray:
+                      tau: np.ndarray, armature: np.ndarray | None = None) -> np.ndarray:
         """The acceleration (nv,) under generalized force ``tau`` by the contact law, as the
         compiled loops compute it: for the compliant ground the native ABA
         (:func:`integrators.native.aba`: the generated one on COBRA's structure), for the other
         laws Pinocchio's ABA with the contact forces (``model``, ``data``: this simulator's
         Pinocchio model and data, as :func:`pin.aba` takes them). ABA runs in the WORLD
-        convention."""
+        convention. ``armature`` (nv,) [kg m^2]: the transmission inertia in this step (a gear
+        play's, :func:`integrators.kernels.gear_armature`); None: the model's."""
         if self.loop_law == K.LAW_COMPLIANT:
-            return native.aba(self._native_data(), q, v, tau)
+            return native.aba(self._native_data(), q, v, tau, armature)
+        if armature is not None:
+            model = self._pin_with_armature(armature)
+            data = model.createData()
         a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD).copy()  # the contact laws below add to it
         if self.loop_law == K.LAW_COMPLIANT_IMPLICIT:
             K.implicit_friction_acceleration(v, pin.computeMinverse(model, data).copy(), self.model.chain.floating,
@@ -592,6 +607,13 @@ class Simulator:
         else:
             K.soft_contact_acceleration(*args)
         return a
+
+    def _pin_with_armature(self, armature: np.ndarray) -> pin.Model:
+        """A copy of this simulator's Pinocchio model with the transmission inertia ``armature``
+        (nv,) [kg m^2] (a gear play's step, whose open plays carry no motor)."""
+        model = self._pin.copy()
+        model.armature = armature
+        return model
 
     def _momentum_step(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray,
                        v_out: np.ndarray) -> int:

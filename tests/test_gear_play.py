@@ -11,7 +11,8 @@ What the model must do, and what these tests hold it to:
 - MuJoCo's gear backlash (an independent engine's two hinges and a joint limit) and ours move the
   encoders' readings and the head alike, where the dead zone on the loop's error that this
   library had before moved the readings 2.6 times as much as MuJoCo's;
-- what cannot step it (a single step, the momentum scheme) refuses it by name.
+- a single step carries the play's state and steps it as the compiled rollout does;
+- what cannot step it (the momentum scheme) refuses it by name.
 """
 from __future__ import annotations
 
@@ -177,6 +178,26 @@ def test_what_cannot_step_a_gear_play_refuses_it(cobra):
     no_motor = PARAMS.with_parameters([dataclasses.replace(PARAMS["armature"], value=0.0, min=0.0, log_scale=False)])
     with pytest.raises(InputError, match=r"backlash = 0.01 rad needs the motors' inertia \(armature > 0"):
         Simulator(cobra, no_motor.with_values(backlash=0.01))
+
+
+@pytest.mark.parametrize("law", ["compliant", "soft_constraint"])
+def test_the_single_step_carries_the_play_as_the_rollout_steps_it(cobra, law):
+    """``Simulator.step`` repeated gives exactly the compiled rollout's states and currents with a
+    0.01 rad play, through the gait's first 0.3 s, in which teeth part and meet (the play's
+    state in ``SimState.gear`` changes flank); a state without one starts open and centred."""
+    params = PARAMS.with_values(backlash=0.01).with_contact_law(law)
     sim = Simulator(cobra, params)
-    with pytest.raises(InputError, match="backlash = 0.01 rad.*Simulator.rollout"):
-        sim.step(sim.rest_state(), np.zeros(11))
+    gait = SidewindingGait(0.65)
+    start = sim.rest_state(gait.q_ref(0.0))
+    n = 300
+    table = gait.q_ref(np.arange(n + 1) * DT)
+    tr = sim.rollout(start, table, n * DT)
+    st, flanks = start, set()
+    for i in range(n):
+        assert np.array_equal(tr.q[i], st.q) and np.array_equal(tr.v[i], st.v), f"step {i}"
+        assert np.array_equal(tr.current[i], st.current), f"step {i}"
+        st = sim.step(st, table[i])
+        flanks |= {(j, s) for j, s in enumerate(st.gear[K.GEAR_ENGAGED])}
+    assert np.array_equal(tr.q[n], st.q) and np.array_equal(tr.v[n], st.v)
+    assert {s for _, s in flanks} == {-1.0, 0.0, 1.0}       # open, and on either flank, during the run
+    assert np.all(np.abs(st.gear[K.GEAR_GAP]) <= 0.01)
