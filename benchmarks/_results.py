@@ -15,6 +15,7 @@ import json
 import os
 import platform
 import subprocess
+import sys
 from importlib import metadata
 from pathlib import Path
 from typing import Any, Iterable
@@ -145,3 +146,12 @@ def write_results(name: str, rows: list[dict], meta: dict, markdown: str,
                                     indent=2, default=float) + "\n")
     md_path.write_text(markdown.rstrip() + "\n\n" + environment_markdown(env) + "\n")
     return json_path, md_path
+
+
+def publish(name: str, rows: list[dict], meta: dict, markdown: str) -> int:
+    """:func:`write_results`, then the table to stdout and the files' paths to stderr; returns
+    0, a script's exit status."""
+    json_path, md_path = write_results(name, rows, meta, markdown)
+    print(markdown)
+    print(f"wrote {json_path} and {md_path}", file=sys.stderr)
+    return 0

@@ -34,7 +34,7 @@ import time
 import numpy as np
 
 from _args import number_list
-from _results import write_results
+from _results import publish
 from mujoco_fit import GAITS_HZ, HEAD_BOUND_M, JOINT_BOUND_FACTOR, JOINT_FLOOR_RAD, TRUTH, holdout_plan
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
@@ -245,11 +245,7 @@ def main(argv: list[str] | None = None) -> int:
             "rule_steps_per_time_constant": STEPS_PER_CONTACT_TIME_CONSTANT, "summary": summary(rows),
             "mujoco_own_step": own_summary(own_rows), "mujoco_own_step_rows": own_rows,
             "wall_s": time.perf_counter() - t0}
-    md = markdown(rows, meta)
-    json_path, md_path = write_results("contact_step", rows, meta, md)
-    print(md)
-    print(f"wrote {json_path} and {md_path}", file=sys.stderr)
-    return 0
+    return publish("contact_step", rows, meta, markdown(rows, meta))
 
 
 if __name__ == "__main__":

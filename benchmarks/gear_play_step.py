@@ -39,7 +39,7 @@ import time
 import numpy as np
 
 from _args import number_list
-from _results import write_results
+from _results import publish
 from diagnose_accuracy import LIBRARY
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
@@ -155,11 +155,7 @@ def main(argv: list[str] | None = None) -> int:
     meta = {"plays_rad": plays, "dev_case": {"play_rad": DEV_CASE[0], "gait_hz": DEV_CASE[1]}, "truth": TRUTH,
             "steps_s": list(STEPS_S), "play_changes": list(PLAY_CHANGES), "duration_s": DURATION_S,
             "summary": summary(rows), "wall_s": time.perf_counter() - t0}
-    md = markdown(meta)
-    json_path, md_path = write_results("gear_play_step", rows, meta, md)
-    print(md)
-    print(f"wrote {json_path} and {md_path}", file=sys.stderr)
-    return 0
+    return publish("gear_play_step", rows, meta, markdown(meta))
 
 
 if __name__ == "__main__":
