@@ -40,7 +40,8 @@ import numpy as np
 
 from _args import number_list
 from _results import publish
-from diagnose_accuracy import LIBRARY
+from contact_step import mean_joint_rms
+from diagnose_accuracy import LIBRARY, TRUTH
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
 from integrators.simulator import SimSettings, Simulator
@@ -49,13 +50,11 @@ from integrators.simulator import SimSettings, Simulator
 PLAYS_RAD = (0.005, 0.02, 0.04)
 #: The case looked at while finding the effect (play [rad], gait [Hz]).
 DEV_CASE = (0.02, 0.65)
-#: diagnose_accuracy.py's robot: the nominal model with these values [N m s/rad, -, N m/A].
-TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 GAITS_HZ = (0.35, 0.5, 0.65)
 DURATION_S = 6.0
 #: Our physics steps [s] (the servo loop keeps its 1 ms period); the last is the reference.
 STEPS_S = (1e-3, 5e-4, 2.5e-4, 1.25e-4)
-#: Relative changes of the play for the branches.
+#: Relative changes of the play, and of the joint damping beside it, for the branches.
 PLAY_CHANGES = (-0.005, -0.0025, 0.0025, 0.005)
 SAMPLE_DT_S = 0.02
 
@@ -68,12 +67,6 @@ def run(model: CobraModel, params: ModelParameters, dt: float, gait_hz: float) -
     state = sim.rest_state(gait.q_ref(0.0))
     traj = sim.rollout(state, gait.q_ref, DURATION_S, record_every=int(round(SAMPLE_DT_S / dt)))
     return traj.q[-1, :2].copy(), traj.q[:, -model.n_joints:].copy()
-
-
-def joint_rms(a: np.ndarray, b: np.ndarray) -> float:
-    """Mean over joints of the RMS difference [rad] of two (N, 11) series at the same times."""
-    n = min(len(a), len(b))
-    return float(np.mean(np.sqrt(np.mean((a[:n] - b[:n]) ** 2, axis=0))))
 
 
 def summary(rows: list[dict]) -> list[dict]:
@@ -145,7 +138,7 @@ def main(argv: list[str] | None = None) -> int:
                       for c in PLAY_CHANGES]
             row = {"gait_hz": gait_hz, "play_rad": b, "dt_s": dt,
                    "head_to_finest_m": float(np.linalg.norm(head - head_ref)),
-                   "joints_to_finest_rad": joint_rms(joints, joints_ref),
+                   "joints_to_finest_rad": mean_joint_rms(joints, joints_ref),
                    "head_damping_moved_m": float(max(np.linalg.norm(m - head) for m in damped))}
             if b:
                 moved = [run(model, LIBRARY.transform(truth, {"backlash": b * (1 + c)}), dt, gait_hz)[0]

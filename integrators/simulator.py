@@ -445,7 +445,7 @@ class Simulator:
                              f"kg m^2) to cross the play, got {act[:, K.A_ARMATURE].min():g}")
         self._momentum = MomentumStep(self.model, s.dt) if s.scheme == "momentum" else None
         self._soft_warm = np.zeros((len(f), 4))  # the soft-constraint solver's last edge forces [N]
-        self._no_gear = np.zeros((K.N_GEAR, self.model.n_joints))  # step's gear rows: it refuses a gear play
+        self._no_gear = np.zeros((K.N_GEAR, self.model.n_joints))  # step's gear rows without a play (not read)
         self._native: native.NativeData | None = None  # the compiled loop's ABA workspace, made at its first use
 
     def __getstate__(self) -> dict:
@@ -567,10 +567,10 @@ class Simulator:
             status = self._momentum_step(state.q, state.v, tau, q, v)
         if status:
             self._raise(status, state.t, state.q, v)
-        if not self.gear_play:
-            return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1)
-        K.gear_step(v, a, self.act, self.settings.dt, gear, armature)
-        return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1, gear)
+        if self.gear_play:
+            K.gear_step(v, a, self.act, self.settings.dt, gear, armature)
+        return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1,
+                        gear if self.gear_play else None)
 
     def _native_data(self) -> native.NativeData:
         """The compiled loop's ABA workspace (:mod:`integrators.native`), made at its first use."""
