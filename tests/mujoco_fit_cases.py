@@ -11,14 +11,14 @@ from sysid.gap.metrics import compare_runs
 from sysid.generators.dataset import RunPlan
 from sysid.generators.mujoco_recording import record_mujoco, twin_options
 from sysid.identification.lsq import fit_lsq
+from parameter_error import with_error
 
-TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}  # MuJoCo's values (N m s/rad for damping)
 GAITS = (0.35, 0.5, 0.65)  # Hz
 
 
 def truth() -> ModelParameters:
-    """The nominal parameters at MuJoCo's values (:data:`TRUTH`)."""
-    return ModelParameters.nominal().with_values(**TRUTH)
+    """The nominal parameters at MuJoCo's values (:data:`parameter_error.PARAMETER_ERROR`)."""
+    return with_error()
 
 
 def record(cobra, options, rng, name, duration, xy, heading):

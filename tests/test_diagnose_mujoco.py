@@ -22,11 +22,11 @@ from cobra_model import CobraModel, ModelParameters
 from sysid.generators.dataset import RunPlan
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.generators.mujoco_recording import record_mujoco, twin_options
+from parameter_error import with_error
 
 pytestmark = pytest.mark.slow
 pytest.importorskip("mujoco")
 
-ERROR = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 FREE = ["mu_c", "joint_damping", "motor_km", "mu_s", "k2", "friction_cone", "contact_rounding"]
 #: MuJoCo-side option -> (its value, the library effect, that effect's parameter, the largest
 #: fraction of the held-out joint RMSE left once it is named). A delay or an offset is most of the
@@ -40,7 +40,7 @@ CASES = {"command_delay": (0.04, "actuator_delay", "actuator_delay", 0.5),
 @pytest.mark.parametrize("option", list(CASES))
 def test_the_effect_added_in_mujoco_is_named_with_its_value(option):
     value, effect, parameter, left = CASES[option]
-    truth = ModelParameters.nominal().with_values(**ERROR)
+    truth = with_error()
     options = dataclasses.replace(twin_options(truth), **{option: value})
     model = CobraModel.load()
     rng = np.random.default_rng(21)

@@ -16,11 +16,11 @@ from integrators.simulator import Simulator
 from sysid.generators.dataset import RunPlan, record
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
+from parameter_error import with_error
 
 LIBRARY = EffectLibrary()
 #: Each effect's realistic magnitude (SI units of its parameter), as benchmarks/diagnose_accuracy.py hides it.
 MAGNITUDES = {e.name: e.realistic for e in LIBRARY}
-ERROR = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 FREE = ["mu_c", "joint_damping", "motor_km"]
 SEED = 21
 DURATION_S = 3.0
@@ -31,7 +31,7 @@ HEAD_FLOOR_M = 0.005
 def diagnosed(effect: str | None, *also: str, seed: int = SEED, progress=lambda message: None):
     """The diagnosis of runs with ``effect`` (and the effects ``also``) hidden, looking for as many;
     ``seed`` draws the runs' starts and noise, ``progress`` gets the workflow's messages."""
-    truth = ModelParameters.nominal().with_values(**ERROR)
+    truth = with_error()
     if effect is not None:
         truth = LIBRARY.transform(truth, {e: MAGNITUDES[e] for e in (effect, *also)}, frozen=True)
     model = CobraModel.load()

@@ -15,11 +15,12 @@ from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.dataset import RunPlan, record
 from sysid.identification.lockstep import Evaluate, run, run_together
 from sysid.identification.objective import Objective, Weights, simulate_together
+from parameter_error import with_error
 
 LIBRARY = EffectLibrary()
 FREE = ["mu_c", "joint_damping", "motor_km"]
 NOMINAL = ModelParameters.nominal().with_frozen(free=FREE)
-TRUTH = LIBRARY.transform(NOMINAL.with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098),
+TRUTH = LIBRARY.transform(with_error(NOMINAL),
                           {"backlash": 0.02}, frozen=True)
 
 

@@ -17,6 +17,7 @@ from sysid.generators.dataset import DATA_DIR, JOINT_RATE_HZ, RunPlan, load_mani
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.mujoco_recording import (EFFECT_OPTIONS, record_mujoco, rollout_with_torques, twin_options,
                                                with_effects)
+from parameter_error import with_error
 
 mujoco = pytest.importorskip("mujoco")
 
@@ -263,7 +264,7 @@ def test_our_simulator_follows_mujocos_stiff_contact_at_mujocos_values(cobra, fr
     from sysid.generators.mujoco_recording import rollout, stiff_contact, twin_counterpart
 
     gait = SidewindingGait(freq_hz)
-    truth = PARAMS.with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
+    truth = with_error(PARAMS)
     q0 = Simulator(cobra).rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=0.3).q
     options = stiff_contact(twin_options(truth))
     _, q_mj, _ = rollout(mujoco_twin.build(cobra.urdf_path, options, truth), q0, gait.q_ref, 6.0,

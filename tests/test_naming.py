@@ -17,6 +17,7 @@ from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.dataset import RunPlan, record
 from sysid.identification.lsq import ParameterReport
 from sysid.identification.objective import Weights
+from parameter_error import with_error
 
 LIBRARY = EffectLibrary()
 
@@ -381,7 +382,7 @@ def test_the_share_an_effect_carries_is_nil_at_its_inactive_value_and_large_wher
     friction (0.3 N m in the data, fitted at its value) carries most of the held-out cost:
     switched off, the joints lag their commands."""
     free = ["mu_c", "joint_damping", "motor_km"]
-    truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098).with_frozen(free=free)
+    truth = with_error().with_frozen(free=free)
     holdout = measured_runs(LIBRARY.transform(truth, {effect: value}, frozen=True) if in_data else truth)
     fitted = LIBRARY[effect].parameter.value if value is None else value
     c = replace(candidate(effect, 0.0, [0.0]), params=LIBRARY.transform(truth, {effect: fitted}))

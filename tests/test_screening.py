@@ -13,11 +13,12 @@ from sysid.discrepancy.effects import EffectLibrary
 from sysid.identification.lockstep import run
 from sysid.identification.lsq import fit_lsq
 from sysid.identification.objective import Objective, Weights
+from parameter_error import with_error
 
 LIBRARY = EffectLibrary()
 FREE = ["mu_c", "joint_damping", "motor_km"]
 NOMINAL = ModelParameters.nominal().with_frozen(free=FREE)
-TRUTH = NOMINAL.with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
+TRUTH = with_error(NOMINAL)
 
 
 def measured(truth: ModelParameters) -> list:
@@ -281,7 +282,7 @@ def test_the_refit_with_a_named_limit_also_starts_from_the_unbent_motor():
     assert kept.cost < bent.cost / 20                          # 2.1 against 171 when written
     # the limit, motor constant and friction within 2 % (0.8, 0.6, 0.1 % when written); the
     # damping, which the runs pin down least, within 15 % (9 %) where the bent basin's is 59 % low
-    for name, value in {"torque_limit": 2.5, "motor_km": 0.0098, "mu_c": 0.24}.items():
+    for name, value in {"torque_limit": 2.5, "motor_km": TRUTH.value("motor_km"), "mu_c": TRUTH.value("mu_c")}.items():
         assert kept.params.value(name) == pytest.approx(value, rel=0.02), name
     assert kept.params.value("joint_damping") == pytest.approx(0.16, rel=0.15)
     assert bent.params.value("joint_damping") < 0.1 and bent.params.value("torque_limit") > 2.57
@@ -314,7 +315,7 @@ def test_the_refit_with_a_named_limit_also_starts_from_the_base_fits_own_start()
     assert kept.cost < 10                                      # 4.8 when written; the bent basins 136-170
     # the limit, motor constant and friction within 2 % (1.2, 0.7, 0.5 % when written), the
     # damping within 15 % (12 %); the bent fits' friction is 13-16 % high, their damping 46 % low
-    for name, value in {"torque_limit": 2.5, "motor_km": 0.0098, "mu_c": 0.24}.items():
+    for name, value in {"torque_limit": 2.5, "motor_km": TRUTH.value("motor_km"), "mu_c": TRUTH.value("mu_c")}.items():
         assert kept.params.value(name) == pytest.approx(value, rel=0.02), name
     assert kept.params.value("joint_damping") == pytest.approx(0.16, rel=0.15)
 

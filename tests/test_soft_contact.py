@@ -30,6 +30,8 @@ from integrators.batch import BatchSimulator
 from integrators.simulator import SimSettings, Simulator, contact_resolved
 from sysid.generators.mujoco_recording import rollout, twin_counterpart, twin_options
 from sysid.identification.objective import SENSOR_NOISE
+from parameter_error import with_error
+
 
 def soft(params: ModelParameters) -> ModelParameters:
     """``params`` under the soft-constraint law."""
@@ -410,7 +412,7 @@ def test_reference_weights_are_mujocos_body_weights(cobra):
     """Each body's weight at the reference pose, which scales the soft laws' compliance, is the
     value MuJoCo computes for the same URDF (``body_invweight0``), transmission inertia included
     (it halves a middle module's weight here: 0.59 -> 0.32 1/kg)."""
-    truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
+    truth = with_error()
     options = twin_options(truth)
     assert options.armature > 0
     mj = mujoco_twin.build(cobra.urdf_path, options, truth)
@@ -430,7 +432,7 @@ def test_at_mujocos_states_the_contact_accelerations_are_mujocos(cobra, cone, la
     :func:`integrators.kernels.soft_contact_rows`) the difference reached 10 %."""
     import mujoco
 
-    truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
+    truth = with_error()
     options = dataclasses.replace(twin_options(truth), cone=cone)
     mj = mujoco_twin.build(cobra.urdf_path, options, truth)
     sim = Simulator(cobra, twin_counterpart(truth).with_contact_law(law))
@@ -464,7 +466,7 @@ def test_at_mujocos_states_the_contact_accelerations_are_mujocos(cobra, cone, la
 
 
 def test_the_soft_law_follows_mujocos_default_contact(cobra):
-    truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
+    truth = with_error()
     ours = twin_counterpart(truth)
     gait, duration = SidewindingGait(0.5), 3.0
     q0 = Simulator(cobra).rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=0.3).q
@@ -510,7 +512,7 @@ def test_on_mujocos_stiff_contact_the_resolved_step_follows_mujocos_joints(cobra
     MuJoCo's values, the 0.65 Hz gait's joints with our 1 ms step are 1.6 mrad off, 3.6 times the
     encoders' rounding floor (0.44 mrad); at the resolved step (0.25 ms, eight per time constant)
     0.40 mrad (measured; 0.54 mrad at four), inside issue 16's 1.5 x floor."""
-    truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
+    truth = with_error()
     ours = twin_counterpart(truth).with_values(contact_time_constant=0.002).with_contact_law("soft_constraint")
     gait, duration, every = SidewindingGait(0.65), 6.0, 0.02
     q0 = Simulator(cobra).rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=0.3).q
@@ -536,7 +538,7 @@ def test_the_elliptic_law_follows_mujocos_elliptic_cone(cobra):
     millimetres (measured 2.9 mrad RMS over 3 s at 0.5 Hz, the head by 6.2 cm), the elliptic
     law's by 0.29 mrad (1.4 cm; 0.47 mrad with the current pose's weights of before), under the
     0.44 mrad noise floor of that benchmark's measured joints; every force stays in its cone."""
-    truth = ModelParameters.nominal().with_values(mu_c=0.24, joint_damping=0.16, motor_km=0.0098)
+    truth = with_error()
     ours = twin_counterpart(truth).with_values(contact_time_constant=0.04)
     gait, duration = SidewindingGait(0.5), 3.0
     q0 = Simulator(cobra).rest_state(gait.q_ref(np.zeros(1))[0], heading_rad=0.3).q
