@@ -386,6 +386,7 @@ class Simulator:
         self.model = model.with_armature(per_joint("armature"))
         self._pin = self.model.pin_model
         self._data = self._pin.createData()
+        self._pin_play: tuple[pin.Model, pin.Data] | None = None  # _pin_with_armature's
         ground = np.zeros(K.N_GROUND)
         for name, slot in K.GROUND_PARAMETERS.items():
             ground[slot] = effect_value(p, name)
@@ -590,8 +591,7 @@ class Simulator:
         if self.loop_law == K.LAW_COMPLIANT:
             return native.aba(self._native_data(), q, v, tau, armature)
         if armature is not None:
-            model = self._pin_with_armature(armature)
-            data = model.createData()
+            model, data = self._pin_with_armature(armature)
         a = pin.aba(model, data, q, v, tau, pin.Convention.WORLD).copy()  # the contact laws below add to it
         if self.loop_law == K.LAW_COMPLIANT_IMPLICIT:
             K.implicit_friction_acceleration(v, pin.computeMinverse(model, data).copy(), self.model.chain.floating,
@@ -608,12 +608,15 @@ class Simulator:
             K.soft_contact_acceleration(*args)
         return a
 
-    def _pin_with_armature(self, armature: np.ndarray) -> pin.Model:
-        """A copy of this simulator's Pinocchio model with the transmission inertia ``armature``
-        (nv,) [kg m^2] (a gear play's step, whose open plays carry no motor)."""
-        model = self._pin.copy()
-        model.armature = armature
-        return model
+    def _pin_with_armature(self, armature: np.ndarray) -> tuple[pin.Model, pin.Data]:
+        """A copy of this simulator's Pinocchio model (made at the first call, then reused) with
+        the transmission inertia ``armature`` (nv,) [kg m^2] set, and its data (a gear play's
+        step, whose open plays carry no motor)."""
+        if self._pin_play is None:
+            model = self._pin.copy()
+            self._pin_play = (model, model.createData())
+        self._pin_play[0].armature = armature
+        return self._pin_play
 
     def _momentum_step(self, q: np.ndarray, v: np.ndarray, tau: np.ndarray, q_out: np.ndarray,
                        v_out: np.ndarray) -> int:
