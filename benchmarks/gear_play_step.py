@@ -1,13 +1,15 @@
 """What the gear play's impacts owe to the physics step: convergence, and branches in the play's width.
 
 The gear play (the ``backlash`` effect, :func:`integrators.kernels.gear_step`) joins motor and
-output in a plastic impact when the motor reaches a tooth flank. The semi-implicit step meets
-the flank on its grid: an impact happens at the end of the step in which the gap crossed the
-play, and its momentum acts on the positions from the next step on. A play a fraction of a
-step's travel wider or narrower can move an impact by a whole step, and what follows by the
-impulse times ``dt``; a sidewinding body in stick and slip on the ground can carry that into
-another head path. ``benchmarks/diagnose_accuracy.py``'s backlash case showed it: the fitted
-play named right, its held-out final head 21.5 -> 29.5 mm.
+output in a plastic impact when the motor reaches a tooth flank. A step finds that the gap
+crossed the play during it; :func:`integrators.kernels.gear_impacts` hands the impact's momentum
+to the joined bodies at once and moves their positions by the part of the step after the
+crossing. Until it did (the eighty-third stop) the momentum was a torque over the next step: an
+impact a step late, after the servo and the ground had acted on the rates before it, and a play
+a fraction of a step's travel wider or narrower could move an impact by a whole step; a
+sidewinding body in stick and slip on the ground can carry that into another head path.
+``benchmarks/diagnose_accuracy.py``'s backlash case showed it: the fitted play named right, its
+held-out final head 21.5 -> 29.5 mm.
 
 This benchmark measures it on true trajectories (no measurement, no fit) of the robot of
 ``diagnose_accuracy.py`` (its truth: ``mu_c``, ``joint_damping``, ``motor_km`` off nominal), each

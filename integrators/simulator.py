@@ -570,6 +570,9 @@ class Simulator:
             self._raise(status, state.t, state.q, v)
         if self.gear_play:
             K.gear_step(v, a, self.act, self.settings.dt, gear, armature)
+            nd = self._native_data()
+            K.gear_impacts(q, v, gear, armature, self.settings.dt, self.model.chain.floating, nd.model.handle,
+                           nd.handle, np.empty(K.N_IMPACT_ROWS * self.model.nv))
         return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1,
                         gear if self.gear_play else None)
 
