@@ -515,6 +515,12 @@ CHANGES: tuple[tuple[str, str, str, tuple[str, ...]], ...] = (
     # are other data, and every compiled step passes its armature to the ABA (runs without
     # backlash the same bit for bit)
     ("2026-12-07T14:58", "beeabd0", "backlash as gear play", DIAGNOSIS_FILES + ("effect_signal", "sim_speed")),
+    # the gear play's impact handed to the joined bodies at the flank's time
+    # (integrators.kernels.gear_impacts), not a torque over the next step: every diagnosis
+    # screens backlash, our simulator's backlash cases are other data, and every compiled step
+    # scans the plays for an impact (runs without backlash the same bit for bit)
+    ("2026-12-07T23:27", "a006145", "the gear play's impact at the flank's time",
+     DIAGNOSIS_FILES + ("effect_signal", "sim_speed")),
 )
 
 

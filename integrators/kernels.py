@@ -525,7 +525,7 @@ def gear_step(v, a, act, dt, gear, armature):
 N_IMPACT_ROWS = 6
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def gear_impacts(q, v, gear, armature, dt, floating, aba_model, aba_data, scratch):
     """The plastic impacts of the gear plays that closed in the last step (:func:`gear_step`:
     momentum ``P_j = gear[GEAR_IMPULSE, j]`` [N m s], late part ``l_j = gear[GEAR_LATE, j]``),
@@ -549,25 +549,26 @@ def gear_impacts(q, v, gear, armature, dt, floating, aba_model, aba_data, scratc
     ``aba_model``, ``aba_data``: the native handles (:data:`integrators.native.ABA`);
     ``scratch`` (:data:`N_IMPACT_ROWS` * nv,).
     """
-    nv = v.shape[0]
     nj = gear.shape[1]
+    hit = False
+    for j in range(nj):  # every step of every rollout passes here: no impact costs this scan alone
+        if gear[GEAR_IMPULSE, j] != 0.0:
+            hit = True
+    if not hit:
+        return False
+    nv = v.shape[0]
     nbase = nv - nj
     zero, force, late = scratch[:nv], scratch[nv:2 * nv], scratch[2 * nv:3 * nv]
     a0, a_force, a_late = scratch[3 * nv:4 * nv], scratch[4 * nv:5 * nv], scratch[5 * nv:]
-    hit = False
     for i in range(nv):
         zero[i] = 0.0
         force[i] = 0.0
         late[i] = 0.0
     for j in range(nj):
         p = gear[GEAR_IMPULSE, j]
-        if p != 0.0:
-            force[nbase + j] = p
-            late[nbase + j] = gear[GEAR_LATE, j] * p
-            gear[GEAR_IMPULSE, j] = 0.0
-            hit = True
-    if not hit:
-        return False
+        force[nbase + j] = p
+        late[nbase + j] = gear[GEAR_LATE, j] * p
+        gear[GEAR_IMPULSE, j] = 0.0
     qp, zp, armp = q.ctypes, zero.ctypes, armature.ctypes
     ABA(aba_model, aba_data, qp, zp, zp, armp, a0.ctypes)
     ABA(aba_model, aba_data, qp, zp, force.ctypes, armp, a_force.ctypes)
