@@ -766,8 +766,8 @@ def _step(i, plan, q, v, a, goals, integ, prev_err, duty, current, gear, armatur
     """:func:`rollout_step` on the views of the workspace and of ``servo``'s rows (a loop makes
     them once, not at every step: each view costs an atomic reference count), with the gear
     plays' impacts after the integration (:func:`gear_impacts`: ``aba_model``, ``aba_data``, its
-    scratch ``impact``; never called without a play, so the momentum-form step, which models
-    none, passes no handles).
+    scratch ``impact``; it calls ABA only when an impact is owed, which takes a play, so the
+    momentum-form step, which models none, passes no handles).
 
     Compiled once and called by every contact law's loop (:data:`LAW_LOOPS`), not inlined into
     each: the step's inlined helpers are most of a loop's compile time (about 13 s on a 2-core
