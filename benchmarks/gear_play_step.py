@@ -9,7 +9,7 @@ impact a step late, after the servo and the ground had acted on the rates before
 a fraction of a step's travel wider or narrower could move an impact by a whole step; a
 sidewinding body in stick and slip on the ground can carry that into another head path.
 ``benchmarks/diagnose_accuracy.py``'s backlash case showed it: the fitted play named right, its
-held-out final head 21.5 -> 29.5 mm.
+held-out final head 21.5 -> 29.5 mm (32.8 -> 0.8 mm since).
 
 This benchmark measures it on true trajectories (no measurement, no fit) of the robot of
 ``diagnose_accuracy.py`` (its truth: ``mu_c``, ``joint_damping``, ``motor_km`` off nominal), each
