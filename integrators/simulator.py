@@ -447,12 +447,14 @@ class Simulator:
         self._momentum = MomentumStep(self.model, s.dt) if s.scheme == "momentum" else None
         self._soft_warm = np.zeros((len(f), 4))  # the soft-constraint solver's last edge forces [N]
         self._no_gear = np.zeros((K.N_GEAR, self.model.n_joints))  # step's gear rows without a play (not read)
+        self._impact = np.empty(K.N_IMPACT_ROWS * self.model.nv)  # step's scratch for K.gear_impacts
         self._native: native.NativeData | None = None  # the compiled loop's ABA workspace, made at its first use
 
     def __getstate__(self) -> dict:
-        """Pickled without the compiled loop's workspace: it points into this process's memory
-        (the next rollout makes a new one)."""
-        return {**self.__dict__, "_native": None}
+        """Pickled without the compiled loop's workspace, which points into this process's memory
+        (the next rollout makes a new one), and without the gear play's Pinocchio copy (a cache
+        :meth:`_pin_with_armature` makes again)."""
+        return {**self.__dict__, "_native": None, "_pin_play": None}
 
     def with_gains(self, gains: ServoGains) -> "Simulator":
         """A simulator identical but for the servo gains."""
@@ -572,7 +574,7 @@ class Simulator:
             K.gear_step(v, a, self.act, self.settings.dt, gear, armature)
             nd = self._native_data()
             K.gear_impacts(q, v, gear, armature, self.settings.dt, self.model.chain.floating, nd.model.handle,
-                           nd.handle, np.empty(K.N_IMPACT_ROWS * self.model.nv))
+                           nd.handle, self._impact)
         return SimState(state.t + self.settings.dt, q, v, integ, prev_err, duty, current, state.step + 1,
                         gear if self.gear_play else None)
 

@@ -132,7 +132,7 @@ def test_a_play_far_narrower_than_the_steps_resolve_is_no_play(cobra):
     4 s gait (measured 0.0035 mm and 0.0004 mrad; 0.05 mm and 0.004 mrad while the impact was
     a torque over the next step; a play of 1 mrad moves them 0.97 mm and 0.41 mrad).
     (On the soft-constraint law the loads ring from step to step and a 1 urad play rattles: it
-    moves the head by up to 5 mm in 4 s; docs/model.md.)"""
+    moves the head by 12.6 mm in 4 s, 4.9 mm while the impact was a step late; docs/model.md.)"""
     gait = SidewindingGait(0.5)
     runs = {}
     for b in (0.0, 1e-6, 1e-3):
