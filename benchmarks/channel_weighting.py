@@ -50,7 +50,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._args import number_list  # noqa: E402
 from benchmarks._results import write_results  # noqa: E402
-from benchmarks.diagnose_matrix import ERROR, EVAL_SEEDS, FREE_MUJOCO, FREE_SIM, Job, make_runs  # noqa: E402
+from benchmarks._robot import PARAMETER_ERROR  # noqa: E402
+from benchmarks.diagnose_matrix import EVAL_SEEDS, FREE_MUJOCO, FREE_SIM, Job, make_runs  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from sysid.discrepancy.diagnose import balanced_weights  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
@@ -74,7 +75,7 @@ CASES = (("sim", "sim", None, "compliant"),
          ("stiff-soft_constraint", "mujoco", "stiff", "soft_constraint"))
 WEIGHTINGS = ("fixed", "balanced", "residual", "joints")
 #: The joint-side values the runs were made with (MuJoCo's counterparts are the same numbers).
-TRUTH = {"joint_coulomb": MAGNITUDE, "joint_damping": ERROR["joint_damping"], "motor_km": ERROR["motor_km"]}
+TRUTH = {"joint_coulomb": MAGNITUDE, "joint_damping": PARAMETER_ERROR["joint_damping"], "motor_km": PARAMETER_ERROR["motor_km"]}
 #: The head's scale [m] that leaves it out of the ``joints`` reference fit.
 NO_HEAD_SCALE_M = 1e3
 
@@ -193,7 +194,7 @@ def main(argv: list[str] | None = None) -> None:
               + "; ".join(f"{c}: " + ", ".join(f"{w} {100 * mean_abs[(c, w)]:.0f} %" for w in WEIGHTINGS)
                           for c in cases) + "."]
     meta = {"effect": EFFECT, "magnitude": MAGNITUDE, "start": START, "iterations": ITERATIONS, "seeds": seeds,
-            "cases": names, "weightings": list(WEIGHTINGS), "truth": TRUTH, "error": ERROR,
+            "cases": names, "weightings": list(WEIGHTINGS), "truth": TRUTH, "error": PARAMETER_ERROR,
             "development_seeds": [], "seconds": time.perf_counter() - t_start}
     json_path, md_path = write_results("channel_weighting", rows, meta,
                                        "# Channel weighting and a joint-side value on another engine's runs\n\n"

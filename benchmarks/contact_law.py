@@ -30,7 +30,8 @@ import time
 import numpy as np
 
 from _results import write_results
-from contact_time_constant import HEADING_RAD, MUJOCO_STEP_S, TRUTH, parse_run_args, start_configuration
+from _robot import PARAMETER_ERROR, with_error
+from contact_time_constant import HEADING_RAD, MUJOCO_STEP_S, parse_run_args, start_configuration
 from mujoco_fit import JOINT_FLOOR_RAD
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
@@ -82,7 +83,7 @@ def compare(q_ours: np.ndarray, q_mujoco: np.ndarray) -> tuple[float, float]:
 def main(argv: list[str] | None = None) -> int:
     duration, gaits = parse_run_args(__doc__.splitlines()[0], argv)
     model = CobraModel.load()
-    truth = ModelParameters.nominal().with_values(**TRUTH)
+    truth = with_error()
     params = twin_counterpart(truth)
     rows, cost = [], {law: [] for law in LAWS}
     t_all = time.perf_counter()
@@ -105,7 +106,7 @@ def main(argv: list[str] | None = None) -> int:
                 row[f"{law}_head_to_mujoco_m"], row[f"{law}_joint_rms_rad"] = compare(q_law, q_mj)
                 cost[law].append(us)
             rows.append(row)
-    meta = {"duration_s": duration, "heading_rad": HEADING_RAD, "truth": TRUTH, "mujoco_step_s": MUJOCO_STEP_S,
+    meta = {"duration_s": duration, "heading_rad": HEADING_RAD, "truth": PARAMETER_ERROR, "mujoco_step_s": MUJOCO_STEP_S,
             "solimp": list(K.SOFT_SOLIMP), "sample_s": SAMPLE_S, "joint_floor_rad": JOINT_FLOOR_RAD,
             "us_per_step": {law: float(np.median(v)) for law, v in cost.items()},
             "wall_s": time.perf_counter() - t_all}

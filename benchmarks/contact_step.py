@@ -35,7 +35,8 @@ import numpy as np
 
 from _args import number_list
 from _results import publish
-from mujoco_fit import GAITS_HZ, HEAD_BOUND_M, JOINT_BOUND_FACTOR, JOINT_FLOOR_RAD, TRUTH, holdout_plan
+from _robot import PARAMETER_ERROR, with_error
+from mujoco_fit import GAITS_HZ, HEAD_BOUND_M, JOINT_BOUND_FACTOR, JOINT_FLOOR_RAD, holdout_plan
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
 from integrators.simulate import simulate_like
@@ -189,7 +190,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    truth = ModelParameters.nominal().with_values(**TRUTH)
+    truth = with_error()
     configs = contact_configurations(twin_options(truth))
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--configs", default="twin,stiff",
@@ -240,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
             "step_error_in_the_air_rad": {f"{dt:g}": {f"{g:g}": e for g, e in by_gait.items()}
                                           for dt, by_gait in air.items()},
             "seeds": seeds, "dev_seeds": list(DEV_SEEDS),
-            "headings_rad": headings, "steps_s": list(STEPS_S), "holdout_s": HOLDOUT_S, "truth": TRUTH,
+            "headings_rad": headings, "steps_s": list(STEPS_S), "holdout_s": HOLDOUT_S, "truth": PARAMETER_ERROR,
             "joint_floor_rad": JOINT_FLOOR_RAD, "joint_bound_factor": JOINT_BOUND_FACTOR, "head_bound_m": HEAD_BOUND_M,
             "rule_steps_per_time_constant": STEPS_PER_CONTACT_TIME_CONSTANT, "summary": summary(rows),
             "mujoco_own_step": own_summary(own_rows), "mujoco_own_step_rows": own_rows,

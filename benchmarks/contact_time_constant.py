@@ -28,6 +28,7 @@ import numpy as np
 
 from _results import RESULTS_DIR, write_results
 from _args import number_list
+from _robot import PARAMETER_ERROR, with_error
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
 from integrators import mujoco_twin
@@ -35,7 +36,6 @@ from integrators.simulator import Simulator
 from sysid.generators.mujoco_recording import rollout, twin_counterpart, twin_options
 
 #: The robot's parameter error (as in benchmarks/mujoco_fit.py).
-TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 #: MuJoCo's contact time constants [s] (its default is 0.02 s).
 TIME_CONSTANTS_S = (0.001, 0.002, 0.005, 0.01, 0.02, 0.04)
 MUJOCO_STEP_S = 0.00025
@@ -83,7 +83,7 @@ def parse_run_args(description: str, argv: list[str] | None) -> tuple[float, lis
 def main(argv: list[str] | None = None) -> int:
     duration, gaits = parse_run_args(__doc__.splitlines()[0], argv)
     model = CobraModel.load()
-    truth = ModelParameters.nominal().with_values(**TRUTH)
+    truth = with_error()
     ours = twin_counterpart(truth)
     rows = []
     t_all = time.perf_counter()
@@ -108,7 +108,7 @@ def main(argv: list[str] | None = None) -> int:
                          "ours_displacement_m": (at_values - start).tolist(),
                          "distance_at_mujoco_values_m": float(np.linalg.norm(at_values - final)),
                          "closest_of_sweep_m": float(min(np.linalg.norm(s - final) for s in swept))})
-    meta = {"duration_s": duration, "heading_rad": HEADING_RAD, "truth": TRUTH, "mujoco_step_s": MUJOCO_STEP_S,
+    meta = {"duration_s": duration, "heading_rad": HEADING_RAD, "truth": PARAMETER_ERROR, "mujoco_step_s": MUJOCO_STEP_S,
             "ours": {n: ours.value(n)
                      for n in ("mu_c", "mu_s", "mu_v", "friction_cone", "contact_rounding", "k1", "k2")},
             "sweep": list(SWEEP), "wall_s": time.perf_counter() - t_all}

@@ -25,6 +25,7 @@ import numpy as np
 
 from _results import write_results
 from _args import number_list
+from _robot import with_error
 from cobra_model import CobraModel, ModelParameters
 from integrators.simulator import Simulator
 from sysid.generators.dataset import DATA_DIR, RunPlan, load_manifest, record
@@ -36,7 +37,6 @@ LIBRARY = EffectLibrary()
 #: Realistic magnitudes of each hidden effect (SI units of its main parameter, ``Effect.realistic``).
 MAGNITUDES = {e.name: e.realistic for e in LIBRARY}
 #: The robot's values off nominal in every case [N m s/rad, -, N m/A]; ``FREE`` starts from nominal.
-TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 #: Effects hidden together.
 PAIRS = ("joint_coulomb_friction+anisotropic_ground_friction", "actuator_delay+link_mass_error")
 FREE = ["mu_c", "joint_damping", "motor_km"]
@@ -48,7 +48,7 @@ DEV_SEEDS = (3, 41)
 
 def make_data(effects: dict[str, float], seed: int):
     """6 training and 3 held-out runs of a robot with parameter error and ``effects`` hidden."""
-    truth = ModelParameters.nominal().with_values(**TRUTH)
+    truth = with_error()
     if effects:
         truth = LIBRARY.transform(truth, effects, frozen=True)
     model = CobraModel.load()

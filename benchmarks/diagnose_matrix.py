@@ -3,7 +3,7 @@
 Each job makes one small dataset and diagnoses it: two training runs (0.5 and 0.65 Hz) and one
 held-out run (0.5 Hz) of ``--duration`` seconds from random poses, measured like the reference
 dataset, from a robot whose ``mu_c``, ``joint_damping`` and ``motor_km`` are 9-60 % off the
-nominal values (``ERROR``, free in the fit) and which has one library effect at a magnitude,
+nominal values (``PARAMETER_ERROR``, free in the fit) and which has one library effect at a magnitude,
 or none (a null). Two engines make the data:
 
 - ``sim``: this project's simulator with the effect added (every library effect);
@@ -88,6 +88,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
 from benchmarks._results import RESULTS_DIR, write_results  # noqa: E402
 from benchmarks._args import number_list  # noqa: E402
+from benchmarks._robot import PARAMETER_ERROR, with_error  # noqa: E402
 from cobra_cli.common import listed_laws  # noqa: E402
 from cobra_model import CobraModel, ModelParameters  # noqa: E402
 from cobra_model.errors import InputError  # noqa: E402
@@ -105,7 +106,6 @@ from sysid.generators.mujoco_recording import (contact_configurations,  # noqa: 
                                                counterpart_under, describe, record_mujoco, twin_options,
                                                with_effects)
 
-ERROR = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 FREE_SIM = ["mu_c", "joint_damping", "motor_km"]
 #: On MuJoCo's runs the ground's shape and stiffness are free as well (another engine's contact).
 FREE_MUJOCO = FREE_SIM + ["mu_s", "k2", "friction_cone", "contact_rounding"]
@@ -128,8 +128,8 @@ EVAL_SEEDS = (40, 41, 42)
 NEAR_LIMIT_FRACTION = 0.25
 ENGINES = ("sim", "mujoco")
 #: MuJoCo's contact configurations for its runs (``--mujoco-contact``), around the twin of the
-#: robot with the parameter error ``ERROR``.
-MUJOCO_CONTACTS = contact_configurations(twin_options(ModelParameters.nominal().with_values(**ERROR)))
+#: robot with the parameter error ``PARAMETER_ERROR``.
+MUJOCO_CONTACTS = contact_configurations(twin_options(with_error()))
 #: Joins the two effects of a pair job's ``effect`` ("actuator_delay+backlash").
 PAIR_SEP = "+"
 
@@ -169,7 +169,7 @@ def hidden_magnitudes(effect: str | None, level: str, magnitude: float | None) -
 
 def make_runs(job: Job, model: CobraModel) -> list:
     """Three runs of ``job`` (two training, one held out) on its engine."""
-    truth = ModelParameters.nominal().with_values(**ERROR)
+    truth = with_error()
     rng = np.random.default_rng(job.seed)
     plans = [RunPlan(f"r{i}", f, job.duration_s, (rng.uniform(-1, 1), rng.uniform(-1, 1)), rng.uniform(0, 2 * np.pi),
                      "train") for i, f in enumerate((0.5, 0.65, 0.5))]
@@ -182,11 +182,11 @@ def make_runs(job: Job, model: CobraModel) -> list:
 
 def truth_params(job: Job, law: str) -> ModelParameters:
     """The robot that made ``job``'s runs, in our model's terms under the contact law ``law``:
-    the parameter error ``ERROR`` and the hidden effects at their values; on MuJoCo's runs at
+    the parameter error ``PARAMETER_ERROR`` and the hidden effects at their values; on MuJoCo's runs at
     MuJoCo's own values (:func:`sysid.generators.mujoco_recording.counterpart_under`, its
     contact configuration's time constant), each effect at its option's value (the same value
     and unit, ``sysid.generators.mujoco_recording.EFFECT_OPTIONS``)."""
-    truth = ModelParameters.nominal().with_values(**ERROR)
+    truth = with_error()
     if job.engine == "mujoco":
         truth = counterpart_under(truth, MUJOCO_CONTACTS[job.mujoco_contact], law)
     return EffectLibrary().transform(truth, job.hidden, frozen=True)
@@ -221,7 +221,7 @@ def near_limit(effect: str, duration_s: float) -> float:
         onset = spec.parameter.value
         return onset + NEAR_LIMIT_FRACTION * (spec.realistic - onset)
     runs = make_runs(Job("sim", None, None, "null", DEV_SEEDS[0], duration_s), CobraModel.load())
-    onset = torque_demand(ModelParameters.nominal().with_values(**ERROR), runs)
+    onset = torque_demand(with_error(), runs)
     return round(onset + NEAR_LIMIT_FRACTION * (spec.realistic - onset), 2)
 
 

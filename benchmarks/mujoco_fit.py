@@ -5,7 +5,7 @@ contact configurations, over 3 noise seeds and 2 starting headings, the fitted m
 final head error is at most 5 cm on every gait and its joint RMSE at most 1.5 times the
 quantisation-and-noise floor. This benchmark measures exactly that, and reports where it fails.
 
-Configurations (the robot's parameter error ``TRUTH`` in all; :mod:`sysid.generators.mujoco_recording`):
+Configurations (the robot's parameter error ``PARAMETER_ERROR`` in all; :mod:`sysid.generators.mujoco_recording`):
 
 | name | contact | friction cone | solref |
 |---|---|---|---|
@@ -72,6 +72,7 @@ import numpy as np
 
 from _results import write_results
 from _args import number_list
+from _robot import PARAMETER_ERROR, with_error
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.run import Run
 from integrators.mujoco_twin import TwinOptions
@@ -85,7 +86,6 @@ from sysid.gap.metrics import compare_runs
 from sysid.generators.mujoco_recording import contact_configurations, describe, record_mujoco, twin_options
 
 #: The robot's parameter error (as in benchmarks/mujoco_robustness.py).
-TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 GAITS_HZ = (0.35, 0.5, 0.65)
 DEV_SEEDS = (5, 7)
 EVAL_SEEDS = (101, 102, 103)
@@ -135,7 +135,7 @@ def run_case(config: str, options: TwinOptions, seed: int, heading: float, args:
              laws: list[str], model: CobraModel, progress: Callable[[str], None]) -> list[dict]:
     """Fit both contact laws on one case, choose on its validation runs, evaluate on its held-out
     runs: one row per held-out gait."""
-    truth = ModelParameters.nominal().with_values(**TRUTH)
+    truth = with_error()
     start = ModelParameters.nominal()
     progress("recording 9 MuJoCo runs")
     train, hold = record_case(options, truth, seed, heading, args.train_duration, args.holdout_duration, model)
@@ -255,7 +255,7 @@ def markdown(rows: list[dict], meta: dict) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    truth = ModelParameters.nominal().with_values(**TRUTH)
+    truth = with_error()
     configs = contact_configurations(twin_options(truth))
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--configs", default=",".join(configs), help=f"subset of {', '.join(configs)}")
@@ -296,7 +296,7 @@ def main(argv: list[str] | None = None) -> int:
         meta = {"configs": {c: describe(configs[c]) for c in chosen}, "seeds": seeds, "dev_seeds": list(DEV_SEEDS),
                 "headings_rad": headings, "train_duration_s": args.train_duration,
                 "holdout_duration_s": args.holdout_duration, "laws": laws, "free": {law: list(LAW_FREE[law]) for law in laws},
-                "truth": TRUTH, "validation_turn_rad": VALIDATION_TURN_RAD,
+                "truth": PARAMETER_ERROR, "validation_turn_rad": VALIDATION_TURN_RAD,
                 "iterations_per_stage": args.iterations, "budget_s": args.budget,
                 "channel_weights": args.channel_weights,
                 "joint_floor_rad": JOINT_FLOOR_RAD, "head_bound_m": HEAD_BOUND_M,

@@ -2,7 +2,7 @@
 
 Mirrors ``benchmarks/diagnose_accuracy.py``, but the "measured" runs come from MuJoCo's twin of
 the same URDF (:mod:`sysid.generators.mujoco_recording`: another contact model, integrator and servo model),
-with the same parameter error (``TRUTH``) and one physical effect added in MuJoCo per case:
+with the same parameter error (``PARAMETER_ERROR``) and one physical effect added in MuJoCo per case:
 
 | case | MuJoCo effect | closest effect of our library |
 |---|---|---|
@@ -76,6 +76,7 @@ import numpy as np
 
 from _results import runs_fingerprint, write_results
 from _args import number_list
+from _robot import PARAMETER_ERROR, with_error
 
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.parameters import CONTACT_LAWS
@@ -93,7 +94,6 @@ from sysid.generators.mujoco_recording import (counterpart_under, record_mujoco,
                                                with_effects)
 
 #: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
-TRUTH = {"mu_c": 0.24, "joint_damping": 0.16, "motor_km": 0.0098}
 DEV_SEEDS = (3, 11)
 EVAL_SEEDS = (12,)
 #: MuJoCo's contacts the benchmark runs on (``--contact``): what each makes of the twin's options.
@@ -230,7 +230,7 @@ def floors_markdown(rows: list[dict], law: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    truth = ModelParameters.nominal().with_values(**TRUTH)
+    truth = with_error()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", default=",".join(CASES),
                         help=f"comma-separated subset of {', '.join(CASES)} (default: all)")
@@ -345,7 +345,7 @@ def meta(args: argparse.Namespace, seeds: list[int], chosen: list[str], base: Tw
     """What was run."""
     return {"cases": chosen, "seeds": seeds, "dev_seeds": list(DEV_SEEDS), "duration_s": args.duration,
             "contact": args.contact, "contact_law": args.contact_law, "motor_currents": args.current,
-            "truth": TRUTH, "free": FREE, "twin": dataclasses.asdict(base),
+            "truth": PARAMETER_ERROR, "free": FREE, "twin": dataclasses.asdict(base),
             "library": list(EffectLibrary().names)}
 
 

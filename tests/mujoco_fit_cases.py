@@ -11,13 +11,13 @@ from sysid.gap.metrics import compare_runs
 from sysid.generators.dataset import RunPlan
 from sysid.generators.mujoco_recording import record_mujoco, twin_options
 from sysid.identification.lsq import fit_lsq
-from parameter_error import with_error
+from benchmarks._robot import with_error
 
 GAITS = (0.35, 0.5, 0.65)  # Hz
 
 
 def truth() -> ModelParameters:
-    """The nominal parameters at MuJoCo's values (:data:`parameter_error.PARAMETER_ERROR`)."""
+    """The nominal parameters at MuJoCo's values (:data:`benchmarks._robot.PARAMETER_ERROR`)."""
     return with_error()
 
 

@@ -3,25 +3,23 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
-
-from benchmarks.diagnose_matrix import (DEV_SEEDS, ERROR, EVAL_SEEDS, MUJOCO_CONTACTS, Job,  # noqa: E402
+from benchmarks._robot import PARAMETER_ERROR, with_error
+from benchmarks.diagnose_matrix import (DEV_SEEDS, EVAL_SEEDS, MUJOCO_CONTACTS, Job,
                                         finished_rows, gap_at_truth, interval_coverage, job_key, jobs_for, make_runs,
                                         near_limit, summary, truth_params)
-from benchmarks.effect_signal import ENCODER_FLOOR_RAD, HEAD_FLOOR_M, signal  # noqa: E402
-from cobra_model import CobraModel, ModelParameters  # noqa: E402
-from cobra_model.errors import InputError  # noqa: E402
-from cobra_model.parameters import CONTACT_LAWS  # noqa: E402
-from sysid.discrepancy.diagnose import torque_demand  # noqa: E402
-from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
-from sysid.gap.plots import plot_confusion  # noqa: E402
-from sysid.generators.mujoco_recording import EFFECT_OPTIONS  # noqa: E402
+from benchmarks.effect_signal import ENCODER_FLOOR_RAD, HEAD_FLOOR_M, signal
+from cobra_model import CobraModel
+from cobra_model.errors import InputError
+from cobra_model.parameters import CONTACT_LAWS
+from sysid.discrepancy.diagnose import torque_demand
+from sysid.discrepancy.effects import EffectLibrary
+from sysid.gap.plots import plot_confusion
+from sysid.generators.mujoco_recording import EFFECT_OPTIONS
 
 
 def _row(engine: str, effect: str | None, named: str | None, shrink: float = 0.9, wall: float = 40.0,
@@ -65,7 +63,7 @@ def test_near_limit_magnitudes_are_a_quarter_of_the_way_from_where_each_effect_s
     # development seed's runs without any effect (each of this design's runs demands 3.9-4.2 N m)
     model = CobraModel.load()
     runs = make_runs(Job("sim", None, None, "null", DEV_SEEDS[0], 3.0), model)
-    demand = torque_demand(ModelParameters.nominal().with_values(**ERROR), runs)
+    demand = torque_demand(with_error(), runs)
     assert 3.9 < demand < 4.2
     limit = near_limit("torque_saturation", 3.0)
     assert library["torque_saturation"].realistic < limit < demand
@@ -240,7 +238,7 @@ def test_mujocos_truth_is_its_own_values_under_the_law_fitted_with_the_effect_at
               mujoco_contact="stiff")
     p = truth_params(job, "soft_constraint")
     assert p.contact_law == "soft_constraint" and p.contact_time_constant == MUJOCO_CONTACTS["stiff"].solref[0]
-    assert p.encoder_offset == 0.03 and p.mu_c == ERROR["mu_c"] and p.joint_damping == ERROR["joint_damping"]
+    assert p.encoder_offset == 0.03 and p.mu_c == PARAMETER_ERROR["mu_c"] and p.joint_damping == PARAMETER_ERROR["joint_damping"]
     # MuJoCo's capsule pairs: the modules' ends rounded to the module radius
     assert p.contact_rounding == pytest.approx(0.045)
     model = CobraModel.load()

@@ -22,7 +22,7 @@ from cobra_model import CobraModel, ModelParameters
 from sysid.generators.dataset import RunPlan
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.generators.mujoco_recording import record_mujoco, twin_options
-from parameter_error import with_error
+from benchmarks._robot import with_error
 
 pytestmark = pytest.mark.slow
 pytest.importorskip("mujoco")

@@ -16,7 +16,7 @@ from integrators.simulator import Simulator
 from sysid.generators.dataset import RunPlan, record
 from sysid.discrepancy.diagnose import DiagnoseConfig, diagnose
 from sysid.discrepancy.effects import EffectLibrary
-from parameter_error import with_error
+from benchmarks._robot import with_error
 
 LIBRARY = EffectLibrary()
 #: Each effect's realistic magnitude (SI units of its parameter), as benchmarks/diagnose_accuracy.py hides it.

@@ -231,7 +231,7 @@ def test_the_realistic_play_at_one_millisecond_is_a_smooth_function_of_the_play(
     With the impact a step late (a torque over the next step) the play 0.5 % off moved it by
     24 mm and the run ended 33 mm from the fine one: which step an impact fell in decided the
     head's path."""
-    from parameter_error import with_error
+    from benchmarks._robot import with_error
     from sysid.discrepancy.effects import EffectLibrary
 
     truth, library, gait = with_error(), EffectLibrary(), SidewindingGait(0.65)

@@ -15,7 +15,7 @@ from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.dataset import RunPlan, record
 from sysid.identification.lockstep import Evaluate, run, run_together
 from sysid.identification.objective import Objective, Weights, simulate_together
-from parameter_error import with_error
+from benchmarks._robot import with_error
 
 LIBRARY = EffectLibrary()
 FREE = ["mu_c", "joint_damping", "motor_km"]

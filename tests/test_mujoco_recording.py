@@ -17,7 +17,7 @@ from sysid.generators.dataset import DATA_DIR, JOINT_RATE_HZ, RunPlan, load_mani
 from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.mujoco_recording import (EFFECT_OPTIONS, record_mujoco, rollout_with_torques, twin_options,
                                                with_effects)
-from parameter_error import with_error
+from benchmarks._robot import with_error
 
 mujoco = pytest.importorskip("mujoco")
 

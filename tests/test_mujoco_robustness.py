@@ -10,12 +10,12 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
-from mujoco_robustness import CASES, CONTACTS, TRUTH, at_mujoco_values  # noqa: E402
-from cobra_model.parameters import ModelParameters  # noqa: E402
+from _robot import with_error  # noqa: E402
+from mujoco_robustness import CASES, CONTACTS, at_mujoco_values  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.generators.mujoco_recording import EFFECT_OPTIONS, STIFF_SOLREF_S, counterpart_under  # noqa: E402
 
-ROBOT = ModelParameters.nominal().with_values(**TRUTH)
+ROBOT = with_error()
 
 
 @pytest.mark.parametrize("contact", list(CONTACTS))

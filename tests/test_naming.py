@@ -17,7 +17,7 @@ from sysid.discrepancy.effects import EffectLibrary
 from sysid.generators.dataset import RunPlan, record
 from sysid.identification.lsq import ParameterReport
 from sysid.identification.objective import Weights
-from parameter_error import with_error
+from benchmarks._robot import with_error
 
 LIBRARY = EffectLibrary()
 

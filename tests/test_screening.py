@@ -13,7 +13,7 @@ from sysid.discrepancy.effects import EffectLibrary
 from sysid.identification.lockstep import run
 from sysid.identification.lsq import fit_lsq
 from sysid.identification.objective import Objective, Weights
-from parameter_error import with_error
+from benchmarks._robot import with_error
 
 LIBRARY = EffectLibrary()
 FREE = ["mu_c", "joint_damping", "motor_km"]
@@ -265,10 +265,7 @@ def test_the_refit_with_a_named_limit_also_starts_from_the_unbent_motor():
     seed 23's runs of the confusion matrix's design: refitted from there alone the whole runs'
     fit stays in the bent basin; from the candidate with the motor put back where the base fit
     started it reaches the truth's, and that fit is the one kept."""
-    import sys
-    from pathlib import Path
     import sysid.discrepancy.diagnose as diagnose
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
     from benchmarks.diagnose_matrix import Job, make_runs
 
     runs = make_runs(Job("sim", "torque_saturation", 2.5, "realistic", 23, 3.0), CobraModel.load())
@@ -298,10 +295,7 @@ def test_the_refit_with_a_named_limit_also_starts_from_the_base_fits_own_start()
     asserted); from the base fit's own start with the limit's value, as if the limit had been
     modelled from the beginning, the refit reaches the truth's basin (4.8), and it is kept. On
     the old starts this test fails."""
-    import sys
-    from pathlib import Path
     import sysid.discrepancy.diagnose as diagnose
-    sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
     from benchmarks.diagnose_matrix import Job, make_runs
 
     runs = make_runs(Job("sim", "torque_saturation", 2.5, "realistic", 31, 3.0), CobraModel.load())

@@ -30,7 +30,7 @@ from integrators.batch import BatchSimulator
 from integrators.simulator import SimSettings, Simulator, contact_resolved
 from sysid.generators.mujoco_recording import rollout, twin_counterpart, twin_options
 from sysid.identification.objective import SENSOR_NOISE
-from parameter_error import with_error
+from benchmarks._robot import with_error
 
 
 def soft(params: ModelParameters) -> ModelParameters:

@@ -1,7 +1,7 @@
-"""The robot's parameter error that the hidden-effect tests put in their data: the values that
-make the "measured" runs (this simulator's or MuJoCo's), off our nominal model's
-(``ModelParameters.nominal()``: ground Coulomb friction 0.3, joint damping 0.1 N m s/rad, motor
-constant 0.0108 N m/A), as ``benchmarks/diagnose_accuracy.py``'s ``TRUTH``."""
+"""The robot every hidden-effect benchmark and test makes its "measured" runs with (this
+simulator's or MuJoCo's): our nominal model (``ModelParameters.nominal()``: ground Coulomb
+friction 0.3, joint damping 0.1 N m s/rad, motor constant 0.0108 N m/A) with a parameter error, so
+that a diagnosis always has parameter values to fit beside the effect it must name."""
 from __future__ import annotations
 
 from cobra_model import ModelParameters
