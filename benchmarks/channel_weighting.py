@@ -75,7 +75,8 @@ CASES = (("sim", "sim", None, "compliant"),
          ("stiff-soft_constraint", "mujoco", "stiff", "soft_constraint"))
 WEIGHTINGS = ("fixed", "balanced", "residual", "joints")
 #: The joint-side values the runs were made with (MuJoCo's counterparts are the same numbers).
-TRUTH = {"joint_coulomb": MAGNITUDE, "joint_damping": PARAMETER_ERROR["joint_damping"], "motor_km": PARAMETER_ERROR["motor_km"]}
+TRUTH = {"joint_coulomb": MAGNITUDE, "joint_damping": PARAMETER_ERROR["joint_damping"],
+         "motor_km": PARAMETER_ERROR["motor_km"]}
 #: The head's scale [m] that leaves it out of the ``joints`` reference fit.
 NO_HEAD_SCALE_M = 1e3
 

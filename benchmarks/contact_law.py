@@ -106,7 +106,8 @@ def main(argv: list[str] | None = None) -> int:
                 row[f"{law}_head_to_mujoco_m"], row[f"{law}_joint_rms_rad"] = compare(q_law, q_mj)
                 cost[law].append(us)
             rows.append(row)
-    meta = {"duration_s": duration, "heading_rad": HEADING_RAD, "truth": PARAMETER_ERROR, "mujoco_step_s": MUJOCO_STEP_S,
+    meta = {"duration_s": duration, "heading_rad": HEADING_RAD, "truth": PARAMETER_ERROR,
+            "mujoco_step_s": MUJOCO_STEP_S,
             "solimp": list(K.SOFT_SOLIMP), "sample_s": SAMPLE_S, "joint_floor_rad": JOINT_FLOOR_RAD,
             "us_per_step": {law: float(np.median(v)) for law, v in cost.items()},
             "wall_s": time.perf_counter() - t_all}

@@ -108,7 +108,8 @@ def main(argv: list[str] | None = None) -> int:
                          "ours_displacement_m": (at_values - start).tolist(),
                          "distance_at_mujoco_values_m": float(np.linalg.norm(at_values - final)),
                          "closest_of_sweep_m": float(min(np.linalg.norm(s - final) for s in swept))})
-    meta = {"duration_s": duration, "heading_rad": HEADING_RAD, "truth": PARAMETER_ERROR, "mujoco_step_s": MUJOCO_STEP_S,
+    meta = {"duration_s": duration, "heading_rad": HEADING_RAD, "truth": PARAMETER_ERROR,
+            "mujoco_step_s": MUJOCO_STEP_S,
             "ours": {n: ours.value(n)
                      for n in ("mu_c", "mu_s", "mu_v", "friction_cone", "contact_rounding", "k1", "k2")},
             "sweep": list(SWEEP), "wall_s": time.perf_counter() - t_all}

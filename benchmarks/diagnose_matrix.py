@@ -3,8 +3,8 @@
 Each job makes one small dataset and diagnoses it: two training runs (0.5 and 0.65 Hz) and one
 held-out run (0.5 Hz) of ``--duration`` seconds from random poses, measured like the reference
 dataset, from a robot whose ``mu_c``, ``joint_damping`` and ``motor_km`` are 9-60 % off the
-nominal values (``PARAMETER_ERROR``, free in the fit) and which has one library effect at a magnitude,
-or none (a null). Two engines make the data:
+nominal values (``benchmarks._robot.PARAMETER_ERROR``, free in the fit) and which has one
+library effect at a magnitude, or none (a null). Two engines make the data:
 
 - ``sim``: this project's simulator with the effect added (every library effect);
 - ``mujoco``: the MuJoCo twin (``sysid.generators.mujoco_recording``) with the effect expressed on MuJoCo's
@@ -182,8 +182,8 @@ def make_runs(job: Job, model: CobraModel) -> list:
 
 def truth_params(job: Job, law: str) -> ModelParameters:
     """The robot that made ``job``'s runs, in our model's terms under the contact law ``law``:
-    the parameter error ``PARAMETER_ERROR`` and the hidden effects at their values; on MuJoCo's runs at
-    MuJoCo's own values (:func:`sysid.generators.mujoco_recording.counterpart_under`, its
+    the parameter error ``PARAMETER_ERROR`` and the hidden effects at their values; on MuJoCo's
+    runs at MuJoCo's own values (:func:`sysid.generators.mujoco_recording.counterpart_under`, its
     contact configuration's time constant), each effect at its option's value (the same value
     and unit, ``sysid.generators.mujoco_recording.EFFECT_OPTIONS``)."""
     truth = with_error()

@@ -5,7 +5,8 @@ contact configurations, over 3 noise seeds and 2 starting headings, the fitted m
 final head error is at most 5 cm on every gait and its joint RMSE at most 1.5 times the
 quantisation-and-noise floor. This benchmark measures exactly that, and reports where it fails.
 
-Configurations (the robot's parameter error ``PARAMETER_ERROR`` in all; :mod:`sysid.generators.mujoco_recording`):
+Configurations (the robot's parameter error ``PARAMETER_ERROR`` in all;
+:mod:`sysid.generators.mujoco_recording`):
 
 | name | contact | friction cone | solref |
 |---|---|---|---|

@@ -238,7 +238,8 @@ def test_mujocos_truth_is_its_own_values_under_the_law_fitted_with_the_effect_at
               mujoco_contact="stiff")
     p = truth_params(job, "soft_constraint")
     assert p.contact_law == "soft_constraint" and p.contact_time_constant == MUJOCO_CONTACTS["stiff"].solref[0]
-    assert p.encoder_offset == 0.03 and p.mu_c == PARAMETER_ERROR["mu_c"] and p.joint_damping == PARAMETER_ERROR["joint_damping"]
+    assert p.encoder_offset == 0.03
+    assert p.mu_c == PARAMETER_ERROR["mu_c"] and p.joint_damping == PARAMETER_ERROR["joint_damping"]
     # MuJoCo's capsule pairs: the modules' ends rounded to the module radius
     assert p.contact_rounding == pytest.approx(0.045)
     model = CobraModel.load()

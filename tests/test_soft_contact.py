@@ -495,8 +495,9 @@ def test_the_soft_laws_accelerations_ring_from_step_to_step_as_mujocos_do(cobra)
     as much (the RMS second difference of each joint's acceleration against its RMS, t >= 0.5 s
     of a 2 s run at 0.5 Hz: 0.52-1.76 on MuJoCo, ours 0.97-1.15 times MuJoCo's per joint when
     written; the elliptic cone's as much as the pyramid's), where our compliant ground at the
-    same values rings a third as much (median 0.34 of the soft law's). A gear play rattles under such loads on both
-    engines (docs/model.md), so this test keeps the law's step-level behaviour MuJoCo's."""
+    same values rings a third as much (median 0.34 of the soft law's). A gear play rattles
+    under such loads on both engines (docs/model.md), so this test keeps the law's step-level
+    behaviour MuJoCo's."""
     import mujoco
 
     truth = with_error()
