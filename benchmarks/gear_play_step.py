@@ -43,7 +43,8 @@ import numpy as np
 from _args import number_list
 from _results import publish
 from contact_step import mean_joint_rms
-from diagnose_accuracy import LIBRARY, TRUTH
+from _robot import PARAMETER_ERROR, with_error
+from diagnose_accuracy import LIBRARY
 from cobra_model import CobraModel, ModelParameters
 from cobra_model.gait import SidewindingGait
 from integrators.simulator import SimSettings, Simulator
@@ -124,7 +125,7 @@ def main(argv: list[str] | None = None) -> int:
     if any(not 0.0 < b <= 0.05 for b in plays):
         parser.error(f"--plays: each in (0, 0.05] rad (the backlash effect's plausible range), got {args.plays!r}")
     model = CobraModel.load()
-    truth = ModelParameters.nominal().with_values(**TRUTH)
+    truth = with_error()
     rows: list[dict] = []
     t0 = time.perf_counter()
     cases = [(g, b) for g in GAITS_HZ for b in (0.0, *plays)]
@@ -136,7 +137,8 @@ def main(argv: list[str] | None = None) -> int:
         head_ref, joints_ref = runs[min(STEPS_S)]
         for dt in STEPS_S[:-1]:
             head, joints = runs[dt]
-            damped = [run(model, params.with_values(joint_damping=TRUTH["joint_damping"] * (1 + c)), dt, gait_hz)[0]
+            damping = PARAMETER_ERROR["joint_damping"]
+            damped = [run(model, params.with_values(joint_damping=damping * (1 + c)), dt, gait_hz)[0]
                       for c in PLAY_CHANGES]
             row = {"gait_hz": gait_hz, "play_rad": b, "dt_s": dt,
                    "head_to_finest_m": float(np.linalg.norm(head - head_ref)),
@@ -147,7 +149,7 @@ def main(argv: list[str] | None = None) -> int:
                          for c in PLAY_CHANGES]
                 row["head_branch_m"] = float(max(np.linalg.norm(m - head) for m in moved))
             rows.append(row)
-    meta = {"plays_rad": plays, "dev_case": {"play_rad": DEV_CASE[0], "gait_hz": DEV_CASE[1]}, "truth": TRUTH,
+    meta = {"plays_rad": plays, "dev_case": {"play_rad": DEV_CASE[0], "gait_hz": DEV_CASE[1]}, "truth": PARAMETER_ERROR,
             "steps_s": list(STEPS_S), "play_changes": list(PLAY_CHANGES), "duration_s": DURATION_S,
             "summary": summary(rows), "wall_s": time.perf_counter() - t0}
     return publish("gear_play_step", rows, meta, markdown(meta))
