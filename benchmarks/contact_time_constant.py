@@ -35,7 +35,6 @@ from integrators import mujoco_twin
 from integrators.simulator import Simulator
 from sysid.generators.mujoco_recording import rollout, twin_counterpart, twin_options
 
-#: The robot's parameter error (as in benchmarks/mujoco_fit.py).
 #: MuJoCo's contact time constants [s] (its default is 0.02 s).
 TIME_CONSTANTS_S = (0.001, 0.002, 0.005, 0.01, 0.02, 0.04)
 MUJOCO_STEP_S = 0.00025

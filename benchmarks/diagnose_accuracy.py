@@ -36,9 +36,9 @@ from sysid.identification.splits import read_runs
 LIBRARY = EffectLibrary()
 #: Realistic magnitudes of each hidden effect (SI units of its main parameter, ``Effect.realistic``).
 MAGNITUDES = {e.name: e.realistic for e in LIBRARY}
-#: The robot's values off nominal in every case [N m s/rad, -, N m/A]; ``FREE`` starts from nominal.
 #: Effects hidden together.
 PAIRS = ("joint_coulomb_friction+anisotropic_ground_friction", "actuator_delay+link_mass_error")
+#: The parameters the robot has off nominal (``_robot.PARAMETER_ERROR``), fitted from nominal.
 FREE = ["mu_c", "joint_damping", "motor_km"]
 #: Data seeds used while the workflow was developed: never reported. Seed 41 was the reported seed
 #: until 2026-12-04, when its torque-limit case showed the refit after naming stopping short from

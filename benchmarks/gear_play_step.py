@@ -137,8 +137,7 @@ def main(argv: list[str] | None = None) -> int:
         head_ref, joints_ref = runs[min(STEPS_S)]
         for dt in STEPS_S[:-1]:
             head, joints = runs[dt]
-            damping = PARAMETER_ERROR["joint_damping"]
-            damped = [run(model, params.with_values(joint_damping=damping * (1 + c)), dt, gait_hz)[0]
+            damped = [run(model, params.with_values(joint_damping=truth.joint_damping * (1 + c)), dt, gait_hz)[0]
                       for c in PLAY_CHANGES]
             row = {"gait_hz": gait_hz, "play_rad": b, "dt_s": dt,
                    "head_to_finest_m": float(np.linalg.norm(head - head_ref)),

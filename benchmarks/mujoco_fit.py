@@ -86,7 +86,6 @@ from sysid.identification.objective import SENSOR_NOISE, Objective
 from sysid.gap.metrics import compare_runs
 from sysid.generators.mujoco_recording import contact_configurations, describe, record_mujoco, twin_options
 
-#: The robot's parameter error (as in benchmarks/mujoco_robustness.py).
 GAITS_HZ = (0.35, 0.5, 0.65)
 DEV_SEEDS = (5, 7)
 EVAL_SEEDS = (101, 102, 103)

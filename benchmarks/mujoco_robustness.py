@@ -93,7 +93,6 @@ from sysid.identification.contact_choice import nominal_start
 from sysid.generators.mujoco_recording import (counterpart_under, record_mujoco, stiff_contact, twin_options,
                                                with_effects)
 
-#: The robot's parameter error, as in benchmarks/diagnose_accuracy.py.
 DEV_SEEDS = (3, 11)
 EVAL_SEEDS = (12,)
 #: MuJoCo's contacts the benchmark runs on (``--contact``): what each makes of the twin's options.

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import pytest
 
+from benchmarks._robot import with_error
+
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 
-from _robot import with_error  # noqa: E402
 from mujoco_robustness import CASES, CONTACTS, at_mujoco_values  # noqa: E402
 from sysid.discrepancy.effects import EffectLibrary  # noqa: E402
 from sysid.generators.mujoco_recording import EFFECT_OPTIONS, STIFF_SOLREF_S, counterpart_under  # noqa: E402
